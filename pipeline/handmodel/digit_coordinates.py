@@ -1,0 +1,94 @@
+"""Coordinates of points relative to each digit's bone chain, shared by skinning and shape space.
+
+For every point and digit: the arc length `s` along the digit's joint polyline (measured from
+the first joint; negative inside the palm, where the first bone's line is extended backwards),
+the nearest point on that polyline, and the distance to it relative to the digit's influence
+radius. `digit_affinity` turns these into a smooth partition between the palm and the digits.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from . import anatomy
+
+AFFINITY_SHARPNESS = 18.0     # larger: sharper split between neighbouring digits
+PALM_AFFINITY_RADIUS = 1.3    # relative distance at which palm and digit weigh equally
+
+
+@dataclasses.dataclass
+class DigitCoordinates:
+    arc: np.ndarray            # (N,) arc length along the chain, metres
+    nearest: np.ndarray        # (N, 3) nearest point on the (extended) chain polyline
+    relative_distance: np.ndarray  # (N,) distance / influence radius at that arc length
+    joint_arcs: np.ndarray     # (3,) arc length of the three joints (first is 0)
+    total_length: float
+
+
+def influence_radius(finger: anatomy.Finger, arc):
+    """Radius of the region a digit's bones move, along its arc length."""
+    joint_arcs = np.r_[0.0, np.cumsum(finger.lengths)]
+    radii = np.array(finger.radii) * (1.35 if finger.name == "thumb" else 1.0)
+    return np.interp(arc, joint_arcs, radii)
+
+
+def digit_coordinates(points, finger: anatomy.Finger) -> DigitCoordinates:
+    chain, _ = finger.chain()
+    lengths = np.linalg.norm(np.diff(chain, axis=0), axis=1)
+    joint_arcs = np.r_[0.0, np.cumsum(lengths)]
+    best_distance = np.full(len(points), np.inf)
+    arc = np.zeros(len(points))
+    nearest = np.zeros_like(points)
+    for k in range(3):
+        a, b = chain[k], chain[k + 1]
+        direction = (b - a) / lengths[k]
+        t = (points - a) @ direction
+        lo = -np.inf if k == 0 else 0.0
+        hi = np.inf if k == 2 else lengths[k]
+        t = np.clip(t, lo, hi)
+        candidate = a + t[:, None] * direction
+        distance = np.linalg.norm(points - candidate, axis=1)
+        better = distance < best_distance
+        best_distance = np.where(better, distance, best_distance)
+        arc = np.where(better, joint_arcs[k] + t, arc)
+        nearest = np.where(better[:, None], candidate, nearest)
+    relative = best_distance / influence_radius(finger, np.clip(arc, 0, joint_arcs[-1]))
+    return DigitCoordinates(arc, nearest, relative, joint_arcs[:3], float(joint_arcs[-1]))
+
+
+def all_digit_coordinates(points):
+    return {name: digit_coordinates(points, anatomy.HAND_FINGERS[name]) for name in anatomy.FINGERS}
+
+
+def digit_affinity(coordinates, parts=None):
+    """(N, 6) partition of unity over (palm, thumb, index, middle, ring, pinky).
+
+    A point near a digit's axis belongs to that digit; a point far from all of them to the
+    palm. Points labelled as a digit by `parts` (PART_NAMES indices 1-5) belong to it alone.
+    """
+    logits = [np.full(len(next(iter(coordinates.values())).arc), -AFFINITY_SHARPNESS * PALM_AFFINITY_RADIUS ** 2)]
+    for name in anatomy.FINGERS:
+        logits.append(-AFFINITY_SHARPNESS * coordinates[name].relative_distance ** 2)
+    logits = np.stack(logits, axis=1)
+    logits -= logits.max(1, keepdims=True)
+    affinity = np.exp(logits)
+    affinity /= affinity.sum(1, keepdims=True)
+    if parts is not None:
+        for digit in range(1, 6):
+            own = parts == digit
+            keep = affinity[own][:, [0, digit]]
+            affinity[own] = 0.0
+            affinity[own, 0] = keep[:, 0] / keep.sum(1)
+            affinity[own, digit] = keep[:, 1] / keep.sum(1)
+    return affinity
+
+
+def smoothstep(x):
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3 - 2 * x)
+
+
+def smooth_ramp(x, width):
+    """0 for x < -width, x for x > width, C1 quadratic blend in between."""
+    return np.where(x > width, x, np.where(x < -width, 0.0, (x + width) ** 2 / (4 * width)))

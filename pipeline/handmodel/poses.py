@@ -1,0 +1,34 @@
+"""Named hand poses (local axis-angle per joint, radians), all inside the joint limits."""
+from __future__ import annotations
+
+import numpy as np
+
+from .anatomy import FINGER_JOINTS
+
+
+def _pose(per_joint_degrees):
+    pose = np.zeros((16, 3))
+    for joint, degrees in per_joint_degrees.items():
+        pose[joint] = np.radians(degrees)
+    return pose
+
+
+def _curled(mcp, pip, dip, thumb):
+    joints = {}
+    for name in ("index", "middle", "ring", "pinky"):
+        a, b, c = FINGER_JOINTS[name]
+        joints[a], joints[b], joints[c] = (mcp, 0, 0), (pip, 0, 0), (dip, 0, 0)
+    joints.update(zip(FINGER_JOINTS["thumb"], thumb))
+    return joints
+
+
+NAMED_POSES = {
+    "rest": _pose({}),
+    "fist": _pose(_curled(85, 100, 55, [(35, 15, 20), (35, 0, 0), (45, 0, 0)])),
+    "spread": _pose({1: (0, 0, -18), 4: (0, 0, -4), 10: (0, 0, 10), 7: (-5, 0, 24), 13: (-15, 0, -30)}),
+    "thumbs_up": _pose(_curled(85, 100, 55, [(-10, 0, 25), (0, 0, 0), (-5, 0, 0)])),
+    "pinch": _pose({1: (40, 0, 0), 2: (45, 0, 0), 3: (20, 0, 0),
+                    13: (40, 25, 15), 14: (20, 0, 0), 15: (20, 0, 0)}),
+    "point": _pose({**_curled(85, 100, 55, [(35, 15, 20), (35, 0, 0), (45, 0, 0)]),
+                    1: (0, 0, 0), 2: (0, 0, 0), 3: (0, 0, 0)}),
+}
