@@ -81,16 +81,16 @@ HAND_FINGERS = {
                     palmar=(-0.80, 0.05, 0.60), lengths=(0.044, 0.031, 0.0295),
                     radii=(0.0122, 0.0104, 0.0094, 0.0082),
                     rest_flexion=(0.0, np.radians(12), np.radians(8)), flatness=0.88),
-    "index": Finger("index", base=(0.0300, 0.0845, -0.0010), direction=_spread(7.0), palmar=(0, 0, 1),
+    "index": Finger("index", base=(0.0315, 0.0845, -0.0010), direction=_spread(7.0), palmar=(0, 0, 1),
                     lengths=(0.0415, 0.0245, 0.0220), radii=(0.0098, 0.0087, 0.0077, 0.0069),
                     rest_flexion=(0.0, np.radians(3), np.radians(2))),
-    "middle": Finger("middle", base=(0.0095, 0.0885, -0.0010), direction=_spread(1.0), palmar=(0, 0, 1),
+    "middle": Finger("middle", base=(0.0100, 0.0885, -0.0010), direction=_spread(1.0), palmar=(0, 0, 1),
                      lengths=(0.0455, 0.0285, 0.0235), radii=(0.0100, 0.0089, 0.0079, 0.0071),
                      rest_flexion=(0.0, np.radians(3), np.radians(2))),
-    "ring": Finger("ring", base=(-0.0100, 0.0850, -0.0010), direction=_spread(-5.5), palmar=(0, 0, 1),
+    "ring": Finger("ring", base=(-0.0105, 0.0850, -0.0010), direction=_spread(-5.5), palmar=(0, 0, 1),
                    lengths=(0.0425, 0.0275, 0.0225), radii=(0.0094, 0.0084, 0.0074, 0.0067),
                    rest_flexion=(0.0, np.radians(3), np.radians(2))),
-    "pinky": Finger("pinky", base=(-0.0285, 0.0775, -0.0010), direction=_spread(-13.0), palmar=(0, 0, 1),
+    "pinky": Finger("pinky", base=(-0.0298, 0.0775, -0.0010), direction=_spread(-13.0), palmar=(0, 0, 1),
                     lengths=(0.0335, 0.0195, 0.0200), radii=(0.0083, 0.0073, 0.0065, 0.0059),
                     rest_flexion=(0.0, np.radians(3), np.radians(2))),
 }
@@ -98,8 +98,8 @@ HAND_FINGERS = {
 # Outline of the palm in the xy plane (counter-clockwise); the palm is this polygon rounded by
 # PALM_ROUNDING and extruded to a half-thickness PALM_HALF_THICKNESS + PALM_ROUNDING in z.
 PALM_OUTLINE = np.array([
-    (-0.0200, 0.0040), (0.0180, 0.0040), (0.0240, 0.0350), (0.0315, 0.0800),
-    (0.0110, 0.0860), (-0.0100, 0.0820), (-0.0280, 0.0745), (-0.0270, 0.0380),
+    (-0.0200, 0.0040), (0.0180, 0.0040), (0.0255, 0.0350), (0.0335, 0.0800),
+    (0.0115, 0.0860), (-0.0105, 0.0820), (-0.0300, 0.0745), (-0.0290, 0.0380),
 ])
 PALM_ROUNDING = 0.0092
 PALM_HALF_THICKNESS = 0.0036

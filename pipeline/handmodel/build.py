@@ -58,6 +58,16 @@ def rest_keypoints(with_forearm):
     return np.array(points), np.array(carriers, dtype=np.int32)
 
 
+def joint_parts(with_forearm):
+    """Part (PART_NAMES index) of each joint, so shape fields move a digit's joints with it."""
+    parts = np.zeros(17 if with_forearm else 16, dtype=np.int8)
+    for name, indices in anatomy.FINGER_JOINTS.items():
+        parts[list(indices)] = fmt.PART_NAMES.index(name)
+    if with_forearm:
+        parts[16] = fmt.PART_NAMES.index("forearm")
+    return parts
+
+
 def build_model_data():
     """Both modes of the right hand as HandModelData: {'hand': ..., 'arm': ...}."""
     meshes = build_template_meshes()
@@ -76,11 +86,11 @@ def build_model_data():
             skin_indices=skin_indices, skin_weights=skin_weights,
             joint_names=fmt.JOINT_NAMES + ((fmt.FOREARM_JOINT_NAME,) if with_forearm else ()),
             parents=parents_of(with_forearm), joints=joints, joint_frames=frames,
-            joint_shapedirs=shape_directions(joints),
+            joint_shapedirs=shape_directions(joints, joint_parts(with_forearm)),
             joint_limits=anatomy.default_joint_limits(),
             keypoint_names=fmt.KEYPOINT_NAMES + ((fmt.ELBOW_KEYPOINT_NAME,) if with_forearm else ()),
             keypoints=keypoints, keypoint_joints=keypoint_joints,
-            keypoint_shapedirs=shape_directions(keypoints),
+            keypoint_shapedirs=shape_directions(keypoints, joint_parts(with_forearm)[keypoint_joints]),
             shapedirs=shape_directions(vertices, mesh.parts),
             shape_names=tuple(n for n, _ in SHAPE_PARAMETERS),
             shape_descriptions=tuple(d for _, d in SHAPE_PARAMETERS),

@@ -3,7 +3,7 @@
 For every point and digit: the arc length `s` along the digit's joint polyline (measured from
 the first joint; negative inside the palm, where the first bone's line is extended backwards),
 the nearest point on that polyline, and the distance to it relative to the digit's influence
-radius. `digit_affinity` turns these into a smooth partition between the palm and the digits.
+radius. `digit_membership` turns these into a smooth partition between the palm and the digits.
 """
 from __future__ import annotations
 
@@ -13,8 +13,6 @@ import numpy as np
 
 from . import anatomy
 
-AFFINITY_SHARPNESS = 18.0     # larger: sharper split between neighbouring digits
-PALM_AFFINITY_RADIUS = 1.3    # relative distance at which palm and digit weigh equally
 
 
 @dataclasses.dataclass
@@ -61,27 +59,21 @@ def all_digit_coordinates(points):
     return {name: digit_coordinates(points, anatomy.HAND_FINGERS[name]) for name in anatomy.FINGERS}
 
 
-def digit_affinity(coordinates, parts=None):
-    """(N, 6) partition of unity over (palm, thumb, index, middle, ring, pinky).
+def digit_membership(coordinates, parts=None, inner=1.15, outer=2.2):
+    """(N, 6) partition over (palm, thumb, ..., pinky) with wide, soft borders, for shape fields.
 
-    A point near a digit's axis belongs to that digit; a point far from all of them to the
-    palm. Points labelled as a digit by `parts` (PART_NAMES indices 1-5) belong to it alone.
-    """
-    logits = [np.full(len(next(iter(coordinates.values())).arc), -AFFINITY_SHARPNESS * PALM_AFFINITY_RADIUS ** 2)]
-    for name in anatomy.FINGERS:
-        logits.append(-AFFINITY_SHARPNESS * coordinates[name].relative_distance ** 2)
-    logits = np.stack(logits, axis=1)
-    logits -= logits.max(1, keepdims=True)
-    affinity = np.exp(logits)
-    affinity /= affinity.sum(1, keepdims=True)
+    A point within `inner` influence radii of a digit's axis belongs wholly to it; membership
+    falls smoothly to zero at `outer` radii. Where digits overlap they share; the palm takes the
+    rest. Points labelled as a digit by `parts` belong only to it and the palm."""
+    membership = np.stack([1 - smoothstep((coordinates[name].relative_distance - inner) / (outer - inner))
+                           for name in anatomy.FINGERS], axis=1)
     if parts is not None:
         for digit in range(1, 6):
             own = parts == digit
-            keep = affinity[own][:, [0, digit]]
-            affinity[own] = 0.0
-            affinity[own, 0] = keep[:, 0] / keep.sum(1)
-            affinity[own, digit] = keep[:, 1] / keep.sum(1)
-    return affinity
+            membership[np.ix_(own, [d for d in range(5) if d != digit - 1])] = 0.0
+    total = membership.sum(1, keepdims=True)
+    membership = membership / np.maximum(total, 1.0)
+    return np.concatenate([1 - membership.sum(1, keepdims=True), membership], axis=1)
 
 
 def smoothstep(x):

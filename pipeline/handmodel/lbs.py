@@ -123,7 +123,8 @@ class HandModel(torch.nn.Module):
             global_orient = torch.zeros(batch, 3, dtype=dtype, device=device)
         if transl is None:
             transl = torch.zeros(batch, 3, dtype=dtype, device=device)
-        pose = pose.reshape(batch, 16, 3)
+        pose = pose.to(dtype).reshape(batch, 16, 3)
+        global_orient, transl = global_orient.to(dtype), transl.to(dtype)
         vertices, joints, keypoints = self.shaped(betas)
         transforms = self.bone_transforms(joints, pose, global_orient, transl)
         blended = torch.einsum("vj,bjk->bvk", self.weights, transforms.reshape(batch, -1, 12)).reshape(batch, -1, 3, 4)

@@ -32,21 +32,25 @@ def axis_angle_to_matrix(axis_angle):
 def matrix_to_axis_angle(matrix):
     """Inverse of axis_angle_to_matrix (angle in [0, pi]); for data conversion, not for losses."""
     trace = matrix[..., 0, 0] + matrix[..., 1, 1] + matrix[..., 2, 2]
-    cos = ((trace - 1) / 2).clamp(-1.0, 1.0)
-    angle = torch.acos(cos)
     vee = torch.stack([matrix[..., 2, 1] - matrix[..., 1, 2], matrix[..., 0, 2] - matrix[..., 2, 0],
                        matrix[..., 1, 0] - matrix[..., 0, 1]], dim=-1)
-    sin = torch.sin(angle)
-    axis = vee / (2 * sin.clamp_min(1e-12)).unsqueeze(-1)
-    # near pi the antisymmetric part vanishes: take the axis from the symmetric part instead
-    near_pi = cos < -0.999
+    sin = vee.norm(dim=-1) / 2
+    cos = (trace - 1) / 2
+    angle = torch.atan2(sin, cos)
+    # angle / sin -> 1 for small angles; vee carries the axis until the angle nears pi
+    scale = torch.where(sin > 1e-12, angle / sin.clamp_min(1e-300), torch.ones_like(sin))
+    result = vee / 2 * scale.unsqueeze(-1)
+    near_pi = cos < -0.99
     if near_pi.any():
-        sym = (matrix[near_pi] + torch.eye(3, dtype=matrix.dtype, device=matrix.device)) / 2
+        # the antisymmetric part vanishes at pi: take the axis from the symmetric part instead
+        m = matrix[near_pi]
+        eye = torch.eye(3, dtype=matrix.dtype, device=matrix.device)
+        c = cos[near_pi][:, None, None]
+        sym = ((m + m.transpose(-1, -2)) / 2 - c * eye) / (1 - c)  # = axis axis^T
         column = sym.diagonal(dim1=-2, dim2=-1).argmax(-1)
-        candidate = sym[torch.arange(len(column)), :, column]
-        candidate = candidate / candidate.norm(dim=-1, keepdim=True)
-        candidate = candidate * torch.where((candidate * vee[near_pi]).sum(-1, keepdim=True) < 0, -1.0, 1.0)
-        axis = axis.clone()
-        axis[near_pi] = candidate
-    small = angle < 1e-6
-    return torch.where(small.unsqueeze(-1), vee / 2, axis * angle.unsqueeze(-1))
+        axis = sym[torch.arange(len(column)), :, column]
+        axis = axis / axis.norm(dim=-1, keepdim=True)
+        axis = axis * torch.where((axis * vee[near_pi]).sum(-1, keepdim=True) < 0, -1.0, 1.0)
+        result = result.clone()
+        result[near_pi] = axis * angle[near_pi].unsqueeze(-1)
+    return result

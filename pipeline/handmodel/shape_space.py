@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import anatomy
-from .digit_coordinates import all_digit_coordinates, digit_affinity, smooth_ramp, smoothstep
+from .digit_coordinates import all_digit_coordinates, digit_membership, smooth_ramp, smoothstep
 
 SHAPE_PARAMETERS = (
     ("scale", "overall size, +5% per unit (about the wrist)"),
@@ -22,12 +22,13 @@ SHAPE_PARAMETERS = (
     ("middle_length", "middle finger length from its knuckle, +4% per unit"),
     ("ring_length", "ring finger length from its knuckle, +4% per unit"),
     ("pinky_length", "little finger length from its knuckle, +4% per unit"),
-    ("finger_thickness", "girth of all five digits, +5% per unit"),
+    ("finger_thickness", "girth of all five digits, +4% per unit"),
     ("forearm_length", "forearm length wrist to elbow, +5% per unit (hand+forearm mode)"),
     ("forearm_girth", "forearm girth, +6% per unit (hand+forearm mode)"),
 )
 SHAPE_NAMES = tuple(name for name, _ in SHAPE_PARAMETERS)
 DIGIT_BASE_BLEND = 0.006
+THICKNESS_FADE_IN = 0.025
 
 
 def _chain_point(finger, arc):
@@ -44,7 +45,7 @@ def shape_directions(points, parts=None):
     """(N, 3, 12) displacement of each point per unit of each shape parameter."""
     n = len(points)
     coordinates = all_digit_coordinates(points)
-    affinity = digit_affinity(coordinates, parts)
+    affinity = digit_membership(coordinates, parts)
     dirs = np.zeros((n, 3, len(SHAPE_PARAMETERS)))
     x, y, z = points.T
 
@@ -53,7 +54,10 @@ def shape_directions(points, parts=None):
                                                       / (2 * DIGIT_BASE_BLEND))
                           for d, name in enumerate(anatomy.FINGERS, start=1)], axis=1)
     bases = np.stack([anatomy.HAND_FINGERS[name].base for name in anatomy.FINGERS])
-    carried = (1 - digitness.sum(1))[:, None] * points + digitness @ bases
+    # the palm's shape fields carry the four fingers rigidly from their knuckles; the thumb's
+    # metacarpal lies inside the palm, so it is stretched with it (no shear across its web)
+    fingers = digitness[:, 1:]
+    carried = (1 - fingers.sum(1))[:, None] * points + fingers @ bases[1:]
     palm_mid_x = 0.5 * (anatomy.PALM_OUTLINE[:, 0].min() + anatomy.PALM_OUTLINE[:, 0].max())
 
     dirs[:, :, 0] = 0.05 * points
@@ -64,9 +68,11 @@ def shape_directions(points, parts=None):
     for d, name in enumerate(anatomy.FINGERS):
         finger = anatomy.HAND_FINGERS[name]
         c = coordinates[name]
-        along = _chain_point(finger, smooth_ramp(c.arc, 0.005)) - np.asarray(finger.base)
+        along = _chain_point(finger, np.maximum(c.arc, 0.0)) - np.asarray(finger.base)
         dirs[:, :, 4 + d] = 0.04 * affinity[:, d + 1, None] * along
-        dirs[:, :, 9] += 0.05 * digitness[:, d, None] * (points - c.nearest)
+        # girth fades in over the proximal phalanx so that webs do not fold between digits
+        girth = affinity[:, d + 1] * smoothstep(c.arc / THICKNESS_FADE_IN)
+        dirs[:, :, 9] += 0.04 * girth[:, None] * (points - c.nearest)
     below_cut = anatomy.WRIST_CUT_Y - 0.004 - y
     dirs[:, 1, 10] = -0.05 * smooth_ramp(below_cut, 0.004)
     cx, cz = anatomy.WRIST_CENTRE_XZ

@@ -2,7 +2,7 @@
 
 Along each digit the weights are a 1-D partition of unity in arc length: the palm hands over to
 the first bone, the first to the second and so on, each with a smoothstep centred on the joint
-and as wide as the digit is thick there. Across the hand the digit affinity (see
+and as wide as the digit is thick there. Across the hand the digit membership (see
 digit_coordinates) mixes these chains with the palm, so web skin between two digits follows
 both, while skin that belongs to a digit never follows a neighbouring digit's joints. In
 hand+forearm mode the forearm bone takes over below the wrist.
@@ -12,10 +12,10 @@ from __future__ import annotations
 import numpy as np
 
 from . import anatomy
-from .digit_coordinates import all_digit_coordinates, digit_affinity, smoothstep
+from .digit_coordinates import all_digit_coordinates, digit_membership, smoothstep
 
 MAX_INFLUENCES = 4
-BLEND_WIDTH = {"thumb": (1.1, 0.75, 0.7), "finger": (0.85, 0.7, 0.7)}  # x digit radius, per joint
+BLEND_WIDTH = {"thumb": (1.2, 0.95, 0.9), "finger": (1.0, 0.9, 0.9)}  # x digit radius, per joint
 WRIST_BLEND_HALF_WIDTH = 0.014
 FOREARM_JOINT = 16
 
@@ -23,7 +23,7 @@ FOREARM_JOINT = 16
 def dense_skinning_weights(points, parts, with_forearm):
     """(N, 16 or 17) weights, rows summing to 1, before pruning to MAX_INFLUENCES."""
     coordinates = all_digit_coordinates(points)
-    affinity = digit_affinity(coordinates, parts)
+    affinity = digit_membership(coordinates, parts)
     weights = np.zeros((len(points), 17 if with_forearm else 16))
     weights[:, 0] = affinity[:, 0]
     for digit, name in enumerate(anatomy.FINGERS, start=1):

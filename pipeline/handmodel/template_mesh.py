@@ -12,7 +12,7 @@ import dataclasses
 
 import numpy as np
 
-from . import anatomy, implicit_hand
+from . import anatomy, implicit_hand, remesh
 
 WRIST_RING_SIZE = 28
 FOREARM_RING_SPACING = 0.016
@@ -147,6 +147,13 @@ def _remove_pinched_boundary(faces):
         faces = faces[~drop]
 
 
+def _boundary_mask(faces, count):
+    mask = np.zeros(count, dtype=bool)
+    for loop in boundary_loops(faces):
+        mask[loop] = True
+    return mask
+
+
 def _drop_unused(vertices, faces):
     used = np.unique(faces)
     remap = -np.ones(len(vertices), dtype=np.int64)
@@ -223,10 +230,26 @@ def close_ring(ring, pole):
     return np.stack([np.roll(ring, -1), ring, np.full(len(ring), pole)], axis=1)
 
 
-def hand_surface(voxel=0.0011, target_faces=2300):
+def label_parts(vertices, faces):
+    """Part of each vertex (PART_NAMES index): the nearest primitive group; vertices on an
+    edge joining two different digits are web skin and belong to the palm."""
+    parts = np.argmin(implicit_hand.part_distances(vertices), axis=1).astype(np.int8)
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    a, b = parts[edges[:, 0]], parts[edges[:, 1]]
+    across = (a > 0) & (b > 0) & (a != b)
+    parts[edges[across].ravel()] = 0
+    return parts
+
+
+def hand_surface(voxel=0.0011, target_faces=1000, edge_length=0.0068):
     """The shared hand surface: (vertices, faces, wrist ring indices)."""
     vertices, faces = _marching_cubes(voxel)
     vertices, faces = _decimate(vertices, faces, target_faces)
+    vertices, faces = remesh.split_long_edges(vertices, faces, 4 / 3 * edge_length,
+                                               _project_to_surface)
+    vertices, faces = remesh.flip_to_delaunay(vertices, faces)
+    vertices = _relax(vertices, faces, _boundary_mask(faces, len(vertices)))
+    vertices, faces = remesh.flip_to_delaunay(vertices, faces)
     # cut off everything below the wrist band, leaving one boundary loop
     cut = anatomy.WRIST_CUT_Y + 0.004
     keep = (vertices[faces][:, :, 1] > cut).all(axis=1)
@@ -268,7 +291,7 @@ def _section_scale(ring_points, y):
 def build_template_meshes():
     """Both modes: {'hand': TemplateMesh, 'arm': TemplateMesh}."""
     surface_vertices, surface_faces, ring = hand_surface()
-    parts = np.argmin(implicit_hand.part_distances(surface_vertices), axis=1).astype(np.int8)
+    parts = label_parts(surface_vertices, surface_faces)
     parts[ring] = 0
     shared = len(surface_vertices)
     ring_points = surface_vertices[ring]

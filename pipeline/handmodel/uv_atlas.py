@@ -11,10 +11,21 @@ ATLAS_RESOLUTION = 1024
 ATLAS_PADDING = 6
 
 
-def make_atlas(vertices, faces, max_cost=4.0):
-    """Charts and packing for a closed mesh: (uvs (U, 2) float64, faces_uv (F, 3) int32).
+def make_atlas(vertices, faces, chart_costs=(2.0, 4.0, 8.0, 16.0)):
+    """The atlas with the fewest charts over a few chart-growing costs (ties: the most even
+    texel density): (uvs (U, 2) float64, faces_uv (F, 3) int32, number of charts)."""
+    best = None
+    for cost in chart_costs:
+        uvs, faces_uv, charts = atlas_for_cost(vertices, faces, cost)
+        score = (charts, texel_density_spread(vertices, faces, uvs, faces_uv))
+        if best is None or score < best[0]:
+            best = (score, uvs, faces_uv, charts)
+    return best[1:]
 
-    A high chart cost gives few large charts; xatlas packs them at one texel density."""
+
+def atlas_for_cost(vertices, faces, max_cost):
+    """xatlas charts and packing: a higher cost grows fewer, larger charts; all charts are
+    packed at one texel density."""
     import xatlas
 
     atlas = xatlas.Atlas()

@@ -1,0 +1,30 @@
+import numpy as np
+import pytest
+import torch
+
+from pipeline.formats import hand_model_file as fmt
+from pipeline.handmodel.lbs import HandModel, load_model_data
+
+
+@pytest.fixture(scope="session", params=fmt.MODES)
+def mode(request):
+    return request.param
+
+
+@pytest.fixture(scope="session")
+def model_data():
+    return {mode: fmt.load_hand_model(fmt.default_model_path(mode)) for mode in fmt.MODES}
+
+
+@pytest.fixture(scope="session")
+def model64():
+    return {mode: HandModel.load(mode, dtype=torch.float64) for mode in fmt.MODES}
+
+
+def random_pose(generator, batch, scale, dtype=torch.float64):
+    return scale * torch.randn(batch, 16, 3, generator=generator, dtype=dtype)
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(0)
