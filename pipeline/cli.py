@@ -16,21 +16,21 @@ def _model_build(args):
 def _model_preview(args):
     from .model_preview import write_preview
 
-    print(f"wrote {write_preview(args.out, size=args.size, side=args.side)}")
+    print(f"wrote {write_preview(args.out, size=args.size, side=args.side, folder=args.model)}")
 
 
 def _model_info(args):
     from .handmodel.measurements import anatomy_report
 
-    print(anatomy_report())
+    print(anatomy_report(getattr(args, "model", None)))
 
 
 def _demo(args):
     """The quick-start job: build the hand model from scratch and picture it."""
     out = Path(args.out)
     _model_build(argparse.Namespace(out=out / "model"))
-    _model_preview(argparse.Namespace(out=out / "hand_model.png", size=300, side="right"))
-    _model_info(args)
+    _model_preview(argparse.Namespace(out=out / "hand_model.png", size=300, side="right", model=out / "model"))
+    _model_info(argparse.Namespace(model=out / "model"))
 
 
 def build_parser():
@@ -50,8 +50,10 @@ def build_parser():
     preview.add_argument("--out", default="hand_model.png")
     preview.add_argument("--size", type=int, default=300, help="pixels per view")
     preview.add_argument("--side", choices=("right", "left"), default="right")
+    preview.add_argument("--model", default=None, help="folder of model files (default: shipped)")
     preview.set_defaults(run=_model_preview)
     info = model_commands.add_parser("info", help="print the model's measured anatomy")
+    info.add_argument("--model", default=None, help="folder of model files (default: shipped)")
     info.set_defaults(run=_model_info)
     return parser
 

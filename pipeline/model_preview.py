@@ -23,11 +23,11 @@ VIEWS = {  # name: (pose, view direction (camera looks along it), up)
 }
 
 
-def preview_image(size=300, side="right"):
+def preview_image(size=300, side="right", folder=None):
     """(H, W, 3) uint8 RGB: rows hand-only and hand+forearm, columns the VIEWS and a UV checker."""
     rows = []
     for mode in ("hand", "arm"):
-        model = HandModel.load(mode, side=side, subdivided=True, dtype=torch.float64)
+        model = HandModel.load(mode, side=side, subdivided=True, dtype=torch.float64, folder=folder)
         pose_names = sorted({pose for pose, _, _ in VIEWS.values()})
         poses = torch.as_tensor(np.stack([NAMED_POSES[p] for p in pose_names]))
         if side == "left":
@@ -58,20 +58,20 @@ def _skin(count):
 
 
 def _atlas_tile(model, size):
-    """The UV layout: used area (mask) in grey with the chart edges drawn."""
+    """The UV layout: the used area (the UV mask) with chart borders drawn."""
     mask = uv_mask(model.data.uvs, model.data.faces_uv, resolution=size, dilation_px=0)
     tile = np.full((size, size, 3), 255, np.uint8)
-    tile[mask] = (205, 215, 230)
-    pixels = np.stack([model.data.uvs[:, 0], 1 - model.data.uvs[:, 1]], 1) * size
-    polygons = np.round(pixels[model.data.faces_uv] * 16).astype(np.int32)
-    cv2.polylines(tile, list(polygons), True, (90, 100, 130), 1, cv2.LINE_AA, shift=4)
+    tile[mask] = (150, 170, 210)
+    edge = mask & ~cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    tile[edge] = (60, 70, 110)
     return tile
 
 
-def write_preview(path, size=300, side="right"):
+def write_preview(path, size=300, side="right", folder=None):
+    """Write the preview PNG of the model in `folder` (default: the shipped model)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    image = preview_image(size=size, side=side)
+    image = preview_image(size=size, side=side, folder=folder)
     if not cv2.imwrite(str(path), image[:, :, ::-1]):
         raise OSError(f"could not write {path}")
     return path

@@ -13,7 +13,7 @@ def mode(request):
 
 @pytest.fixture(scope="session")
 def model_data():
-    return {mode: fmt.load_hand_model(fmt.default_model_path(mode)) for mode in fmt.MODES}
+    return {mode: fmt.load_hand_model(fmt.model_path(mode)) for mode in fmt.MODES}
 
 
 @pytest.fixture(scope="session")

@@ -24,7 +24,7 @@ def test_format_module_needs_no_torch():
     import sys
 
     code = ("import sys, pipeline.formats.hand_model_file as f; "
-            "f.load_hand_model(f.default_model_path('arm')); "
+            "f.load_hand_model(f.model_path('arm')); "
             "assert 'torch' not in sys.modules, 'torch was imported'")
     subprocess.run([sys.executable, "-c", code], check=True)
 
@@ -52,4 +52,4 @@ def test_inconsistent_arrays_are_refused(model_data, tmp_path):
 
 def test_unknown_mode_is_refused():
     with pytest.raises(fmt.HandModelFileError, match="unknown model mode"):
-        fmt.default_model_path("foot")
+        fmt.model_path("foot")

@@ -221,8 +221,12 @@ def load_hand_model(path) -> HandModelData:
     return data
 
 
-def default_model_path(mode: str = "hand") -> Path:
-    """Path of the right-hand model shipped with the package (the left is made by mirroring)."""
+SHIPPED_MODEL_FOLDER = Path(__file__).resolve().parent.parent / "assets"
+
+
+def model_path(mode: str = "hand", folder=None) -> Path:
+    """Path of a right-hand model file in `folder` (default: the model shipped with the
+    package; the left hand is made by mirroring)."""
     if mode not in MODES:
         raise HandModelFileError(f"unknown model mode {mode!r}; choose one of {MODES}")
-    return Path(__file__).resolve().parent.parent / "assets" / f"hand_model_{mode}.npz"
+    return Path(folder or SHIPPED_MODEL_FOLDER) / f"hand_model_{mode}.npz"

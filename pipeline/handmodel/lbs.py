@@ -26,12 +26,13 @@ class HandOutput:
     bone_transforms: torch.Tensor  # (B, J, 3, 4) rest space -> posed space per bone
 
 
-def load_model_data(mode="hand", side="right", subdivided=False):
-    """HandModelData of the shipped model, mirrored for the left side, optionally subdivided."""
+def load_model_data(mode="hand", side="right", subdivided=False, folder=None):
+    """HandModelData of a model (default: the shipped one), mirrored for the left side,
+    optionally subdivided."""
     from .mirror import mirror_model_data
     from .subdivision import subdivide_model_data
 
-    data = fmt.load_hand_model(fmt.default_model_path(mode))
+    data = fmt.load_hand_model(fmt.model_path(mode, folder))
     if side == "left":
         data = mirror_model_data(data)
     elif side != "right":
@@ -65,8 +66,8 @@ class HandModel(torch.nn.Module):
         buffer("keypoint_joints", data.keypoint_joints, torch.long)
 
     @classmethod
-    def load(cls, mode="hand", side="right", subdivided=False, dtype=torch.float32, device=None):
-        return cls(load_model_data(mode, side, subdivided), dtype=dtype, device=device)
+    def load(cls, mode="hand", side="right", subdivided=False, dtype=torch.float32, device=None, folder=None):
+        return cls(load_model_data(mode, side, subdivided, folder), dtype=dtype, device=device)
 
     @property
     def num_betas(self):

@@ -39,9 +39,9 @@ def segment_lengths(data):
     return result
 
 
-def bend_volume_loss(mode="hand", joint=1, degrees=90.0):
+def bend_volume_loss(mode="hand", joint=1, degrees=90.0, folder=None):
     """Volume lost when one joint flexes by `degrees`, as (cm^3, % of that digit's volume)."""
-    model = HandModel.load(mode, dtype=torch.float64)
+    model = HandModel.load(mode, dtype=torch.float64, folder=folder)
     pose = torch.zeros(1, 16, 3, dtype=torch.float64)
     pose[0, joint, 0] = np.radians(degrees)
     faces = model.data.faces
@@ -56,10 +56,11 @@ def bend_volume_loss(mode="hand", joint=1, degrees=90.0):
     return lost * 1e6, 100.0 * lost / digit_volume
 
 
-def anatomy_report():
+def anatomy_report(folder=None):
+    """Printable figures of the model files in `folder` (default: the shipped model)."""
     lines = []
     for mode in fmt.MODES:
-        data = fmt.load_hand_model(fmt.default_model_path(mode))
+        data = fmt.load_hand_model(fmt.model_path(mode, folder))
         v, f = data.vertices, data.faces
         edges, _ = midpoint_edges(f)
         lines.append(f"[{mode}] {len(v)} vertices, {len(f)} faces; subdivided: "
@@ -70,7 +71,7 @@ def anatomy_report():
         lines.append(f"  UV: {data.metadata.get('uv_charts')} charts, "
                      f"{uv_mask(data.uvs, data.faces_uv, 512).mean() * 100:.0f}% of a 512 atlas used, "
                      f"texel density spread {texel_density_spread(v, f, data.uvs, data.faces_uv) * 100:.1f}%")
-    data = fmt.load_hand_model(fmt.default_model_path("hand"))
+    data = fmt.load_hand_model(fmt.model_path("hand", folder))
     lines.append(f"hand length (wrist to middle tip): {hand_length(data) * 100:.1f} cm")
     lines.append(f"palm width across the knuckles: {palm_width(data) * 100:.1f} cm")
     for name, lengths in segment_lengths(data).items():
@@ -78,7 +79,17 @@ def anatomy_report():
         lines.append(f"{name:>7}: bones {' / '.join(f'{x * 100:.1f}' for x in lengths)} cm, "
                      f"ratio 1 : {ratios[1]:.2f} : {ratios[2]:.2f}")
     for joint, label in ((1, "index MCP"), (2, "index PIP"), (13, "thumb CMC")):
-        cm3, percent = bend_volume_loss("hand", joint, 90.0 if joint != 13 else 55.0)
+        cm3, percent = bend_volume_loss("hand", joint, 90.0 if joint != 13 else 55.0, folder)
         angle = 90 if joint != 13 else 55
         lines.append(f"volume lost bending {label} {angle} deg: {cm3:.2f} cm^3 ({percent:.1f}% of the digit)")
     return "\n".join(lines)
+
+
+def joint_limits_markdown():
+    """The joint-limit table of docs/hand_model.md (degrees), generated from the anatomy."""
+    limits = anatomy.joint_limits_deg()
+    rows = ["| joint | flexion (x) | twist (y) | deviation (z) |", "|---|---|---|---|"]
+    for j, name in enumerate(fmt.JOINT_NAMES):
+        cells = [f"{lo:g} to {hi:g}" for lo, hi in limits[j]]
+        rows.append(f"| {j} {name} | " + " | ".join(cells) + " |")
+    return "\n".join(rows)
