@@ -36,7 +36,7 @@ def preview_image(size=300, side="right", folder=None):
         with torch.no_grad():
             vertices = model(pose=poses).vertices.numpy()
         faces = model.data.faces
-        extent = 0.24 if mode == "hand" else 0.44
+        extent = 0.24 if mode == "hand" else 0.52
         tiles = []
         for title, (pose, direction, up) in VIEWS.items():
             v = vertices[pose_names.index(pose)]
