@@ -15,15 +15,18 @@ from . import anatomy
 from .digit_coordinates import all_digit_coordinates, digit_membership, smoothstep
 
 MAX_INFLUENCES = 4
-BLEND_WIDTH = {"thumb": (1.2, 0.95, 0.9), "finger": (1.0, 0.9, 0.9)}  # x digit radius, per joint
+BLEND_WIDTH = {"thumb": (0.9, 0.95, 0.9), "finger": (0.75, 0.9, 0.9)}  # x digit radius, per joint
 WRIST_BLEND_HALF_WIDTH = 0.014
+# skin within MEMBERSHIP_INNER digit radii of a digit's axis follows it fully, none beyond
+# MEMBERSHIP_OUTER: tighter than the shape fields', so bending drags little palm skin along
+MEMBERSHIP_INNER, MEMBERSHIP_OUTER = 1.1, 1.9
 FOREARM_JOINT = 16
 
 
 def dense_skinning_weights(points, parts, with_forearm):
     """(N, 16 or 17) weights, rows summing to 1, before pruning to MAX_INFLUENCES."""
     coordinates = all_digit_coordinates(points)
-    affinity = digit_membership(coordinates, parts)
+    affinity = digit_membership(coordinates, parts, inner=MEMBERSHIP_INNER, outer=MEMBERSHIP_OUTER)
     weights = np.zeros((len(points), 17 if with_forearm else 16))
     weights[:, 0] = affinity[:, 0]
     for digit, name in enumerate(anatomy.FINGERS, start=1):
