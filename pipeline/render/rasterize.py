@@ -1,0 +1,131 @@
+"""Visibility: which face covers each pixel centre, and at what depth (no gradients).
+
+Pure PyTorch, batched over frames, on any device. Every face enumerates the pixel centres in
+its screen bounding box; an inside test with edge functions and a depth-keyed scatter-min
+keep the nearest face per pixel. Faces with a vertex at or behind the near plane are culled
+(never clipped), so geometry behind or crossing the camera never produces garbage.
+
+Pixel convention (OpenCV): pixel (i, j) has its centre at (i + 0.5, j + 0.5) in the image
+coordinates that K maps to, i.e. x to the right, y down.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+
+NEAR = 1e-3          # metres
+_FACE_BITS = 31      # face index in the low bits of the depth-sorted key
+
+
+@dataclasses.dataclass
+class Rasterization:
+    """Per-pixel visibility of a batch of frames (B, H, W)."""
+
+    face: torch.Tensor    # (B, H, W) long, index into faces, -1 where no face covers the centre
+    depth: torch.Tensor   # (B, H, W) camera-space z of the visible surface, +inf for background
+    height: int
+    width: int
+
+    @property
+    def covered(self):
+        return self.face >= 0
+
+    def pixel_index(self):
+        """Flat indices (N,) of covered pixels in (B * H * W) order, and their faces (N,)."""
+        flat = self.face.reshape(-1)
+        index = torch.nonzero(flat >= 0).squeeze(1)
+        return index, flat[index]
+
+
+def project(points, K):
+    """Camera-frame points (B, N, 3) -> pixel coordinates (B, N, 2) under K (B, 3, 3) or (3, 3)."""
+    K = K if K.dim() == 3 else K.unsqueeze(0)
+    z = points[..., 2:3]
+    safe = torch.where(z.abs() > 1e-12, z, torch.full_like(z, 1e-12))
+    xy = points[..., :2] / safe
+    fx, fy = K[:, 0, 0, None], K[:, 1, 1, None]
+    cx, cy = K[:, 0, 2, None], K[:, 1, 2, None]
+    return torch.stack([fx * xy[..., 0] + cx, fy * xy[..., 1] + cy], dim=-1)
+
+
+def front_facing(points, faces):
+    """(B, F) bool: the face's outward normal points towards the camera at the origin."""
+    v0, v1, v2 = (points[:, faces[:, k]] for k in range(3))
+    normal = torch.cross(v1 - v0, v2 - v0, dim=-1)
+    return (normal * v0).sum(-1) < 0
+
+
+@torch.no_grad()
+def rasterize(points, faces, K, height, width, cull_backfaces=True, near=NEAR):
+    """Nearest face and depth at every pixel centre.
+
+    points: (B, V, 3) vertex positions in the camera frame (metres, OpenCV axes);
+    faces: (F, 3) long; K: (B, 3, 3) or (3, 3) intrinsics in pixels.
+    cull_backfaces drops faces turned away from the camera (exact for closed meshes).
+    """
+    device = points.device
+    batch, num_faces = points.shape[0], faces.shape[0]
+    pixels = project(points, K)
+    z = points[..., 2]
+    p0, p1, p2 = (pixels[:, faces[:, k]] for k in range(3))          # (B, F, 2)
+    z0, z1, z2 = (z[:, faces[:, k]] for k in range(3))                # (B, F)
+    area = _edge(p0, p1, p2)                                          # twice the signed area
+    valid = (z0 > near) & (z1 > near) & (z2 > near) & (area.abs() > 1e-12)
+    valid &= torch.isfinite(area)
+    if cull_backfaces:
+        valid &= front_facing(points, faces)
+    lo = torch.minimum(torch.minimum(p0, p1), p2)
+    hi = torch.maximum(torch.maximum(p0, p1), p2)
+    # pixel indices whose centres (i + 0.5) lie inside the bounding box, clamped to the image
+    x0 = torch.ceil(lo[..., 0] - 0.5).clamp(min=0)
+    x1 = torch.floor(hi[..., 0] - 0.5).clamp(max=width - 1)
+    y0 = torch.ceil(lo[..., 1] - 0.5).clamp(min=0)
+    y1 = torch.floor(hi[..., 1] - 0.5).clamp(max=height - 1)
+    box_w = (x1 - x0 + 1).clamp(min=0)
+    box_h = (y1 - y0 + 1).clamp(min=0)
+    box_w = torch.where(valid, box_w, torch.zeros_like(box_w))
+    count = (box_w * box_h).long().reshape(-1)
+    depth = torch.full((batch * height * width,), float("inf"), dtype=points.dtype, device=device)
+    face_map = torch.full((batch * height * width,), -1, dtype=torch.long, device=device)
+    total = int(count.sum())
+    if total == 0:
+        return Rasterization(face_map.view(batch, height, width), depth.view(batch, height, width), height, width)
+    # one candidate per (face, pixel in its box)
+    owner = torch.repeat_interleave(torch.arange(batch * num_faces, device=device), count)
+    start = torch.cumsum(count, 0) - count
+    offset = torch.arange(total, device=device) - start[owner]
+    bw = box_w.reshape(-1).long()[owner]
+    px = x0.reshape(-1).long()[owner] + offset % bw
+    py = y0.reshape(-1).long()[owner] + offset // bw
+    centre = torch.stack([px, py], dim=-1).to(points.dtype) + 0.5
+    flat = lambda t: t.reshape(batch * num_faces, -1)[owner]  # noqa: E731
+    a0, a1, a2 = flat(p0), flat(p1), flat(p2)
+    signed_area = area.reshape(-1)[owner]
+    w0 = _edge(a1, a2, centre) / signed_area
+    w1 = _edge(a2, a0, centre) / signed_area
+    w2 = 1.0 - w0 - w1
+    inside = (w0 >= 0) & (w1 >= 0) & (w2 >= 0)
+    inverse_depth = (w0 / z0.reshape(-1)[owner] + w1 / z1.reshape(-1)[owner] + w2 / z2.reshape(-1)[owner])
+    inside &= inverse_depth > 0
+    cand_depth = 1.0 / inverse_depth[inside]
+    frame = owner[inside] // num_faces
+    face_index = owner[inside] % num_faces
+    pixel = (frame * height + py[inside]) * width + px[inside]
+    # sort key: depth bits (positive floats order like integers) then face index
+    depth_bits = cand_depth.float().view(torch.int32).long()
+    key = (depth_bits << _FACE_BITS) | face_index
+    best = torch.full((batch * height * width,), torch.iinfo(torch.long).max, dtype=torch.long, device=device)
+    best.scatter_reduce_(0, pixel, key, reduce="amin")
+    hit = best != torch.iinfo(torch.long).max
+    winner_face = best[hit] & ((1 << _FACE_BITS) - 1)
+    face_map[hit] = winner_face
+    # exact depth of the winning candidates (the key held a float32 copy)
+    is_winner = key == best[pixel]
+    depth[pixel[is_winner]] = cand_depth[is_winner]
+    return Rasterization(face_map.view(batch, height, width), depth.view(batch, height, width), height, width)
+
+
+def _edge(a, b, c):
+    """Edge function: twice the signed area of triangle (a, b, c) in 2D."""
+    return (b[..., 0] - a[..., 0]) * (c[..., 1] - a[..., 1]) - (b[..., 1] - a[..., 1]) * (c[..., 0] - a[..., 0])

@@ -1,0 +1,143 @@
+"""The renderer: the primitives composed into the images a fit asks for, and nothing more.
+
+    images = render(points, mesh, camera_K, 256, 256, outputs=("alpha",))
+    images = render(points, mesh, K, 256, 256, outputs=("rgb", "alpha"), appearance=..., light=...)
+
+Requested outputs decide the work: a silhouette-only call does no texture or shading work,
+and shadows cost nothing when off. Colour images are composited over the background before
+the silhouette antialiasing, so edges blend into the background like real photographs.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+
+from .antialias import EdgeTopology, antialias, edge_topology
+from .interpolate import fragments, interpolate, to_image
+from .rasterize import rasterize
+from .shading import perturbed_normal, shade, uv_tangents, vertex_normals
+from .shadow_map import shadow_visibility
+from .texture import sample_texture
+
+OUTPUTS = ("alpha", "rgb", "depth", "normal", "albedo")
+
+
+@dataclasses.dataclass
+class RenderMesh:
+    """Topology of a mesh for rendering (positions come per call)."""
+
+    faces: torch.Tensor                 # (F, 3) long
+    uvs: torch.Tensor | None = None     # (U, 2) in [0, 1], v up
+    faces_uv: torch.Tensor | None = None  # (F, 3) long
+    topology: EdgeTopology | None = None
+
+    @classmethod
+    def from_model_data(cls, data, device=None, dtype=torch.float32):
+        faces = torch.as_tensor(data.faces, dtype=torch.long, device=device)
+        return cls(faces, torch.as_tensor(data.uvs, dtype=dtype, device=device),
+                   torch.as_tensor(data.faces_uv, dtype=torch.long, device=device), edge_topology(faces))
+
+    def edges(self):
+        if self.topology is None:
+            self.topology = edge_topology(self.faces)
+        return self.topology
+
+
+@dataclasses.dataclass
+class Appearance:
+    albedo: torch.Tensor                   # (3, H, W) in [0, 1]
+    normal_map: torch.Tensor | None = None  # (3, H, W) tangent-space vectors in [-1, 1]
+
+
+@dataclasses.dataclass
+class Light:
+    position: torch.Tensor      # (3,) point light in the camera frame, metres
+    ambient: torch.Tensor       # scalar ambient ratio a in (0, 1)
+    shadows: bool = False
+    shadow_resolution: int = 256
+
+
+def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appearance=None,
+           light=None, background=None, antialiased=True):
+    """Render a batch of frames of one mesh.
+
+    points (B, V, 3) vertices in the camera frame (OpenCV axes, metres); K (3, 3) or (B, 3, 3).
+    Returns {name: (B, H, W, C)}: alpha (C=1), rgb (3, lit colour over `background`, a (3,)
+    tensor or (B, H, W, 3) image, default black), depth (1, +inf where empty), normal (3,
+    camera frame), albedo (3, unlit). alpha and rgb carry silhouette gradients when antialiased.
+    """
+    unknown = set(outputs) - set(OUTPUTS)
+    if unknown:
+        raise ValueError(f"unknown render outputs {sorted(unknown)}; choose from {OUTPUTS}")
+    faces = mesh.faces
+    rast = rasterize(points.detach(), faces, K, height, width)
+    frags = fragments(points, faces, K, rast)
+    result = {}
+    if "depth" in outputs:
+        result["depth"] = rast.depth.unsqueeze(-1)
+    smooth_normals = None
+    if {"normal", "rgb"} & set(outputs):
+        smooth_normals = interpolate(vertex_normals(points, faces), frags, faces)
+    if "normal" in outputs:
+        result["normal"] = to_image(torch.nn.functional.normalize(smooth_normals, dim=-1), frags)
+    needs_colour = {"rgb", "albedo"} & set(outputs)
+    if needs_colour:
+        if appearance is None or mesh.uvs is None:
+            raise ValueError("rgb/albedo outputs need an appearance and a mesh with UVs")
+        uv = interpolate(mesh.uvs, frags, mesh.faces_uv)
+        albedo = sample_texture(appearance.albedo, uv)
+        if "albedo" in outputs:
+            result["albedo"] = to_image(albedo, frags)
+    layers = []
+    if "rgb" in outputs:
+        if light is None:
+            raise ValueError("rgb output needs a light")
+        colour = _lit_colour(points, mesh, frags, uv, albedo, smooth_normals, appearance, light)
+        background = _background(background, points, height, width)
+        rgb = to_image(colour, frags).clone()
+        covered = rast.covered.unsqueeze(-1)
+        layers.append(("rgb", torch.where(covered, rgb, background)))
+    if "alpha" in outputs:
+        ones = torch.ones(len(frags.pixel), 1, dtype=points.dtype, device=points.device)
+        layers.append(("alpha", to_image(ones, frags)))
+    if layers:
+        stacked = torch.cat([image for _, image in layers], dim=-1)
+        if antialiased:
+            stacked = antialias(stacked, points, K, rast, mesh.edges())
+        start = 0
+        for name, image in layers:
+            result[name] = stacked[..., start:start + image.shape[-1]]
+            start += image.shape[-1]
+    return result
+
+
+def _lit_colour(points, mesh, frags, uv, albedo, smooth_normals, appearance, light):
+    normal = smooth_normals
+    if appearance.normal_map is not None:
+        tangents, handedness = uv_tangents(points, mesh.faces, mesh.uvs, mesh.faces_uv)
+        tangent = interpolate(tangents, frags, mesh.faces_uv)
+        value = sample_texture(appearance.normal_map, uv)
+        normal = perturbed_normal(normal, tangent, handedness[frags.face], value)
+    else:
+        normal = torch.nn.functional.normalize(normal, dim=-1, eps=1e-12)
+    position = interpolate(points, frags, mesh.faces)
+    light_position = light.position.to(points.dtype)
+    if light_position.dim() == 2:
+        light_position = light_position[frags.frame]
+    to_light = torch.nn.functional.normalize(light_position - position, dim=-1, eps=1e-12)
+    visibility = None
+    if light.shadows:
+        visibility = shadow_visibility(points, mesh.faces, position, frags.frame, light.position.to(points.dtype),
+                                       light.shadow_resolution)
+    return shade(albedo, normal, to_light, light.ambient, visibility)
+
+
+def _background(background, points, height, width):
+    batch = points.shape[0]
+    if background is None:
+        return torch.zeros(batch, height, width, 3, dtype=points.dtype, device=points.device)
+    background = torch.as_tensor(background, dtype=points.dtype, device=points.device)
+    if background.dim() == 1:
+        return background.view(1, 1, 1, 3).expand(batch, height, width, 3)
+    return background.expand(batch, height, width, 3)

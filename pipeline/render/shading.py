@@ -1,0 +1,51 @@
+"""Shading formulas: vertex normals, UV tangent frames, tangent-space normal maps and the
+HARP light model  colour = albedo * (a + (1 - a) * max(0, n' . l) * V)."""
+from __future__ import annotations
+
+import torch
+
+
+def vertex_normals(points, faces):
+    """(B, V, 3) unit area-weighted vertex normals of (B, V, 3) points."""
+    v0, v1, v2 = (points[:, faces[:, k]] for k in range(3))
+    face_normals = torch.cross(v1 - v0, v2 - v0, dim=-1)
+    normals = torch.zeros_like(points)
+    for k in range(3):
+        normals = normals.index_add(1, faces[:, k], face_normals)
+    return torch.nn.functional.normalize(normals, dim=-1, eps=1e-12)
+
+
+def uv_tangents(points, faces, uvs, faces_uv):
+    """Per-UV-vertex tangents (B, U, 3) (direction of increasing u on the surface) and the
+    per-face handedness (F,) (+1, or -1 where a chart is mirrored in UV space)."""
+    p0, p1, p2 = (points[:, faces[:, k]] for k in range(3))
+    t0, t1, t2 = (uvs[faces_uv[:, k]] for k in range(3))
+    e1, e2 = p1 - p0, p2 - p0
+    d1, d2 = t1 - t0, t2 - t0
+    det = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
+    handedness = torch.where(det < 0, -1.0, 1.0).to(points.dtype)
+    safe = torch.where(det.abs() > 1e-20, det, torch.full_like(det, 1e-20))
+    face_tangent = (e1 * d2[:, 1, None] - e2 * d1[:, 1, None]) / safe[:, None]
+    tangents = torch.zeros(points.shape[0], uvs.shape[0], 3, dtype=points.dtype, device=points.device)
+    for k in range(3):
+        tangents = tangents.index_add(1, faces_uv[:, k], face_tangent)
+    return tangents, handedness
+
+
+def perturbed_normal(normal, tangent, handedness, normal_map_value):
+    """Shading normal from a tangent-space normal-map value (N, 3) in [-1, 1] (z out of the
+    surface), the interpolated normal (N, 3), tangent (N, 3) and handedness (N,)."""
+    n = torch.nn.functional.normalize(normal, dim=-1, eps=1e-12)
+    t = tangent - (tangent * n).sum(-1, keepdim=True) * n
+    t = torch.nn.functional.normalize(t, dim=-1, eps=1e-12)
+    b = handedness[:, None] * torch.cross(n, t, dim=-1)
+    m = normal_map_value
+    return torch.nn.functional.normalize(m[:, :1] * t + m[:, 1:2] * b + m[:, 2:3] * n, dim=-1, eps=1e-12)
+
+
+def shade(albedo, normal, to_light, ambient, visibility=None):
+    """colour = albedo * (a + (1 - a) * max(0, n . l) * V); all (N, .), ambient a scalar or (N, 1)."""
+    diffuse = (normal * to_light).sum(-1, keepdim=True).clamp(min=0)
+    if visibility is not None:
+        diffuse = diffuse * visibility
+    return albedo * (ambient + (1 - ambient) * diffuse)
