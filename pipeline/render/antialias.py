@@ -17,7 +17,6 @@ import torch
 
 from .rasterize import NEAR, Rasterization, front_facing, project
 
-VISIBILITY_TOLERANCE = 0.02   # relative depth slack for the inside pixel (grazing surfaces)
 OCCLUSION_GAP = 0.002         # relative depth by which the outside pixel must lie behind
 
 
@@ -27,7 +26,7 @@ class EdgeTopology:
 
     edges: torch.Tensor        # (E, 2) vertex indices
     faces: torch.Tensor        # (E, 2) face indices, -1 for an open boundary
-    third: torch.Tensor        # (E, 2) the vertex opposite the edge in each face (-1 if none)
+    forward: torch.Tensor      # (E, 2) bool: that face runs along the edge from edges[:, 0] to [:, 1]
     mesh_faces: torch.Tensor   # (F, 3) the faces themselves
 
 
@@ -49,8 +48,9 @@ def edge_topology(faces):
     has_second = counts >= 2
     second = torch.where(has_second, first + 1, first)
     edge_faces = torch.stack([face_id[first], torch.where(has_second, face_id[second], -1)], dim=1)
-    third = torch.stack([corners[first, 2], torch.where(has_second, corners[second, 2], -1)], dim=1)
-    return EdgeTopology(edges, edge_faces, third, f)
+    runs_forward = corners[:, 0] < corners[:, 1]
+    forward = torch.stack([runs_forward[first], runs_forward[second] & has_second], dim=1)
+    return EdgeTopology(edges, edge_faces, forward, f)
 
 
 def antialias(image, points, K, rast: Rasterization, topology: EdgeTopology):
@@ -92,16 +92,17 @@ def silhouette_crossings(points, K, rast: Rasterization, topology: EdgeTopology)
         frame, edge = torch.nonzero(silhouette, as_tuple=True)
         if len(edge) == 0:
             return None
-        # the vertex opposite the edge in its front face tells which side is inside
+        # orient each edge as its front-facing face runs along it: a front-facing face has a
+        # negative signed area in the image (y down), so its inside lies right of a -> b
         use_second = ~front0[frame, edge]
-        opposite = torch.where(use_second, topology.third[edge, 1], topology.third[edge, 0])
+        forward = torch.where(use_second, topology.forward[edge, 1], topology.forward[edge, 0])
+        start = torch.where(forward, topology.edges[edge, 0], topology.edges[edge, 1])
+        end = torch.where(forward, topology.edges[edge, 1], topology.edges[edge, 0])
     pixels = project(points, K)
-    a = pixels[frame, topology.edges[edge, 0]]
-    b = pixels[frame, topology.edges[edge, 1]]
+    a, b = pixels[frame, start], pixels[frame, end]
     with torch.no_grad():
-        q = pixels[frame, opposite]
-        za, zb = z[frame, topology.edges[edge, 0]], z[frame, topology.edges[edge, 1]]
-    results = [_crossings_along(axis, a, b, q, za, zb, frame, rast) for axis in (0, 1)]
+        za, zb = z[frame, start], z[frame, end]
+    results = [_crossings_along(axis, a, b, za, zb, frame, rast) for axis in (0, 1)]
     results = [r for r in results if r is not None]
     if not results:
         return None
@@ -111,7 +112,7 @@ def silhouette_crossings(points, K, rast: Rasterization, topology: EdgeTopology)
     return inside, outside, coverage
 
 
-def _crossings_along(axis, a, b, q, za, zb, frame, rast):
+def _crossings_along(axis, a, b, za, zb, frame, rast):
     """Crossings of silhouette segments a-b with pixel-centre segments along `axis`
     (0: horizontal neighbours, crossing rows; 1: vertical neighbours, crossing columns)."""
     height, width = rast.height, rast.width
@@ -123,9 +124,13 @@ def _crossings_along(axis, a, b, q, za, zb, frame, rast):
         hi = torch.maximum(a[:, across], b[:, across])
         first = torch.ceil(lo - 0.5).clamp(min=0)
         last = torch.floor(hi - 0.5).clamp(max=lines - 1)
-        # a crossing needs the line strictly inside the segment's span
+        # a crossing needs the line strictly inside the segment's span; each edge is handled
+        # by the neighbour pairs across its major axis only (rows for steep edges, columns for
+        # flat ones), so moving it changes the covered area once, not twice
         count = (last - first + 1).clamp(min=0).long()
-        count = torch.where(hi - lo > 1e-9, count, torch.zeros_like(count))
+        extent = (a - b).abs()
+        major = extent[:, across] >= extent[:, axis] if axis == 0 else extent[:, across] > extent[:, axis]
+        count = torch.where((hi - lo > 1e-9) & major, count, torch.zeros_like(count))
         total = int(count.sum())
         if total == 0:
             return None
@@ -150,16 +155,17 @@ def _crossings_along(axis, a, b, q, za, zb, frame, rast):
             pixel_lower = (frame[owner] * height + lower) * width + line_i
             pixel_upper = pixel_lower + width
             upper_centre = torch.stack([line_centre, lower + 1.5], dim=1)
-        direction = pb - pa
-        side_q = _cross(direction, q[owner] - pa)
-        side_upper = _cross(direction, upper_centre.to(pa.dtype) - pa)
-        upper_inside = (side_q > 0) == (side_upper > 0)
+        upper_inside = _cross(pb - pa, upper_centre.to(pa.dtype) - pa) < 0
         inside = torch.where(upper_inside, pixel_upper, pixel_lower)
         outside = torch.where(upper_inside, pixel_lower, pixel_upper)
         inverse_z = (1 - t) / za[owner] + t / zb[owner]
         edge_depth = 1.0 / inverse_z
         depth = rast.depth.reshape(-1)
-        keep &= edge_depth <= depth[inside] * (1 + VISIBILITY_TOLERANCE)
+        # visible occlusion boundary: the inside pixel sees a surface and the outside pixel sees
+        # the background or something behind the edge. (An edge hidden behind an occluder is
+        # rejected here too, because the occluder then also covers the outside pixel, except
+        # where the occluder's own outline falls in the same pixel pair.)
+        keep &= rast.face.reshape(-1)[inside] >= 0
         keep &= depth[outside] > edge_depth * (1 + OCCLUSION_GAP)
     offset = position - 0.5 - lower.to(position.dtype)                 # lower centre -> crossing
     coverage = torch.where(upper_inside, 1 - offset, offset)

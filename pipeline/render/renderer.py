@@ -56,6 +56,8 @@ class Light:
     ambient: torch.Tensor       # scalar ambient ratio a in (0, 1)
     shadows: bool = False
     shadow_resolution: int = 256
+    shadow_target: torch.Tensor | None = None   # (3,) what the shadow camera looks at (default: mesh centre)
+    shadow_radius: float | None = None          # radius the shadow map covers (default: the mesh's)
 
 
 def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appearance=None,
@@ -129,7 +131,7 @@ def _lit_colour(points, mesh, frags, uv, albedo, smooth_normals, appearance, lig
     visibility = None
     if light.shadows:
         visibility = shadow_visibility(points, mesh.faces, position, frags.frame, light.position.to(points.dtype),
-                                       light.shadow_resolution)
+                                       light.shadow_resolution, light.shadow_target, light.shadow_radius)
     return shade(albedo, normal, to_light, light.ambient, visibility)
 
 

@@ -39,16 +39,21 @@ def light_camera(light_position, centre, radius, resolution):
     return rotation, eye, K
 
 
-def shadow_visibility(points, faces, surface_points, surface_frame, light_position, resolution=256):
+def shadow_visibility(points, faces, surface_points, surface_frame, light_position, resolution=256,
+                      target=None, radius=None):
     """Visibility V (N, 1) in [0, 1] of surface points seen from the light.
 
     points (B, V, 3) mesh vertices and surface_points (N, 3) (frames surface_frame (N,)) in one
-    frame of reference (the camera's); light_position (3,) or (B, 3) in that frame."""
+    frame of reference (the camera's); light_position (3,) or (B, 3) in that frame. The light
+    camera looks at `target` (3,) or (B, 3) and holds a sphere of `radius` (metres); both default
+    to the mesh's bounding box, and gradients treat this framing as fixed."""
     batch = points.shape[0]
     light_position = light_position.expand(batch, 3) if light_position.dim() == 1 else light_position
     with torch.no_grad():
-        centre = 0.5 * (points.amin(1) + points.amax(1))
-        radius = (points - centre[:, None]).norm(dim=-1).amax()
+        centre = 0.5 * (points.amin(1) + points.amax(1)) if target is None else target.expand(batch, 3)
+        if radius is None:
+            radius = (points - centre[:, None]).norm(dim=-1).amax()
+        radius = torch.as_tensor(radius, dtype=points.dtype, device=points.device)
     rotation, eye, K = light_camera(light_position, centre, radius, resolution)
     in_light = torch.einsum("bij,bvj->bvi", rotation, points - eye[:, None])
     rast = rasterize(in_light, faces, K, resolution, resolution)
