@@ -1,9 +1,14 @@
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
 
 from pipeline.formats import hand_model_file as fmt
 from pipeline.handmodel.lbs import HandModel, load_model_data
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))  # blender_reference
 
 
 @pytest.fixture(scope="session", params=fmt.MODES)
