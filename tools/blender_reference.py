@@ -31,7 +31,6 @@ def render_shaded(vertices, faces, K, width, height, light_position, colour=(0.8
     import bpy
 
     material = bpy.data.materials.new("harp_diffuse")
-    material.use_nodes = True
     shader = material.node_tree.nodes.get("Principled BSDF")
     shader.inputs["Base Color"].default_value = (*colour, 1.0)
     shader.inputs["Roughness"].default_value = 1.0
@@ -58,7 +57,6 @@ def _render(vertices, faces, K, width, height, material, samples, filter_width, 
         light.location = tuple(float(x) for x in light_position)  # world = our camera frame here
         scene.collection.objects.link(light)
         scene.world = scene.world or bpy.data.worlds.new("harp_world")
-        scene.world.use_nodes = True
         scene.world.node_tree.nodes["Background"].inputs["Color"].default_value = (0.25, 0.25, 0.25, 1.0)
 
     settings = camera.blender_camera_settings(K, width, height)
@@ -112,7 +110,6 @@ def _depth_material():
     import bpy
 
     material = bpy.data.materials.new("harp_depth")
-    material.use_nodes = True
     nodes, links = material.node_tree.nodes, material.node_tree.links
     nodes.clear()
     camera_data = nodes.new("ShaderNodeCameraData")
