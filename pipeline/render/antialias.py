@@ -41,7 +41,7 @@ def edge_topology(faces):
     key = key_a * (int(f.max()) + 1) + key_b
     order = torch.argsort(key, stable=True)
     key, face_id, corners = key[order], face_id[order], corners[order]
-    unique, counts = torch.unique_consecutive(key, return_counts=True)
+    _, counts = torch.unique_consecutive(key, return_counts=True)
     first = torch.cumsum(counts, 0) - counts
     edges = torch.stack([torch.minimum(corners[first, 0], corners[first, 1]),
                          torch.maximum(corners[first, 0], corners[first, 1])], dim=1)
@@ -92,8 +92,8 @@ def silhouette_crossings(points, K, rast: Rasterization, topology: EdgeTopology)
         frame, edge = torch.nonzero(silhouette, as_tuple=True)
         if len(edge) == 0:
             return None
-        # orient each edge as its front-facing face runs along it: a front-facing face has a
-        # negative signed area in the image (y down), so its inside lies right of a -> b
+        # orient each edge a -> b as its front-facing face runs along it: a front-facing face has
+        # a negative signed area in the image (y down), so its inside is where cross(b - a, x - a) < 0
         use_second = ~front0[frame, edge]
         forward = torch.where(use_second, topology.forward[edge, 1], topology.forward[edge, 0])
         start = torch.where(forward, topology.edges[edge, 0], topology.edges[edge, 1])
