@@ -5,21 +5,11 @@
 from __future__ import annotations
 
 import argparse
-import time
 
 import torch
+from timing import seconds_per_call
 
 from pipeline.handmodel.lbs import HandModel
-
-
-def time_it(function, repeats):
-    function()  # warm-up
-    start = time.perf_counter()
-    for _ in range(repeats):
-        function()
-    if torch.cuda.is_available():
-        torch.cuda.synchronize()
-    return (time.perf_counter() - start) / repeats
 
 
 def main():
@@ -54,8 +44,8 @@ def main():
                 out.vertices.square().sum().backward()
 
             name = f"{mode}{' subdivided' if subdivided else ''}"
-            print(f"{name:<22}{model.data.num_vertices:>9}{1000 * time_it(forward, args.repeats):>12.2f}"
-                  f"{1000 * time_it(forward_backward, args.repeats):>12.2f}")
+            print(f"{name:<22}{model.data.num_vertices:>9}{1000 * seconds_per_call(forward, args.repeats):>12.2f}"
+                  f"{1000 * seconds_per_call(forward_backward, args.repeats):>12.2f}")
 
 
 if __name__ == "__main__":

@@ -8,10 +8,10 @@ shadows. --profile adds a breakdown by stage and the top operators (torch.profil
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 import torch
+from timing import seconds_per_call
 
 from pipeline.handmodel.lbs import HandModel
 from pipeline.handmodel.poses import NAMED_POSES
@@ -60,18 +60,6 @@ def run(points, mesh, size, workload, params):
     loss.backward()
 
 
-def timed(function, repeats):
-    function()
-    if torch.cuda.is_available():
-        torch.cuda.synchronize()
-    start = time.perf_counter()
-    for _ in range(repeats):
-        function()
-    if torch.cuda.is_available():
-        torch.cuda.synchronize()
-    return (time.perf_counter() - start) / repeats
-
-
 def stage_breakdown(points, mesh, size, repeats):
     """Milliseconds per frame of the silhouette path's stages."""
     K = torch.tensor([[size * 2.0, 0, size / 2], [0, size * 2.0, size / 2], [0, 0, 1]], device=points.device)
@@ -86,7 +74,7 @@ def stage_breakdown(points, mesh, size, repeats):
         "fragments (barycentrics)": lambda: interpolate.fragments(points, mesh.faces, K, rast),
         "antialias": lambda: antialias.antialias(alpha, points, K, rast, topology),
     }
-    return {name: 1000 * timed(f, repeats) / frames for name, f in stages.items()}
+    return {name: 1000 * seconds_per_call(f, repeats) / frames for name, f in stages.items()}
 
 
 def main():
@@ -104,7 +92,7 @@ def main():
           f"{args.frames} frames; {args.device}; torch {torch.__version__}, {torch.get_num_threads()} threads")
     print(f"{'workload':<22}" + "".join(f"{f'{s}x{s} ms/frame':>18}" for s in args.sizes))
     for name, workload in WORKLOADS.items():
-        row = [1000 * timed(lambda: run(points, mesh, s, workload, params), args.repeats) / args.frames
+        row = [1000 * seconds_per_call(lambda: run(points, mesh, s, workload, params), args.repeats) / args.frames
                for s in args.sizes]
         print(f"{name:<22}" + "".join(f"{value:>18.1f}" for value in row))
     if args.profile:
