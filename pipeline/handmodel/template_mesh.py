@@ -1,7 +1,7 @@
 """Triangle meshes of the template: the implicit hand meshed, cut at the wrist, then closed.
 
 The hand surface is extracted from `implicit_hand` with marching cubes, decimated with quadric
-error metrics to MANO-like resolution and relaxed; it ends at the wrist in a ring of vertices
+error metrics, remeshed to even edge lengths and relaxed; it ends at the wrist in a ring of vertices
 that lie exactly in the plane y = WRIST_CUT_Y. Both modes share this surface (it is the
 leading block of vertices): hand-only mode closes the ring with a flat disc, hand+forearm mode
 continues it with rings down to the elbow and closes it with a dome.
