@@ -1,0 +1,107 @@
+"""The fit's energy terms (appendix C.3, Table C.1), as plain functions of tensors.
+
+Geometry: silhouette, keypoint anchor, displacement size, Laplacian smoothness, normal
+consistency, edge-length (ARAP-style) preservation. Appearance: photometric L1 in the eroded
+mask, and the UV-space regularisers of the albedo texture and the normal map. The perceptual
+term lives in perceptual.py. Shapes: B frames, V vertices, F faces, H x W images.
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+KEYPOINT_UNIT = 0.1   # the anchor measures distances in units of 10 cm
+
+
+def silhouette_loss(alpha, mask):
+    """Mean absolute difference of rendered alpha (B, H, W, 1) and target mask (B, H, W, 1)."""
+    return (alpha - mask).abs().mean()
+
+
+def keypoint_anchor_loss(keypoints, initial_keypoints, root=0):
+    """Mean over frames and keypoints of the squared change of root-relative 3D keypoints
+    (B, K, 3) against their initial estimate, in units of 10 cm."""
+    relative = keypoints - keypoints[:, root:root + 1]
+    initial = initial_keypoints - initial_keypoints[:, root:root + 1]
+    return ((relative - initial) / KEYPOINT_UNIT).square().sum(-1).mean()
+
+
+def displacement_loss(displacements):
+    """Sum of squared per-vertex displacements (V,) along the normals (metres^2)."""
+    return displacements.square().sum()
+
+
+def uniform_laplacian(vertices, edges):
+    """Uniform Laplacian (mean of neighbours minus the vertex) of (B, V, 3) vertices for
+    undirected edges (E, 2)."""
+    both = torch.cat([edges, edges.flip(1)])
+    count = torch.zeros(vertices.shape[1], dtype=vertices.dtype, device=vertices.device)
+    count = count.index_add(0, both[:, 0], torch.ones(len(both), dtype=vertices.dtype, device=vertices.device))
+    summed = torch.zeros_like(vertices).index_add(1, both[:, 0], vertices[:, both[:, 1]])
+    return summed / count.clamp(min=1)[None, :, None] - vertices
+
+
+def laplacian_loss(vertices, edges):
+    """Mean length of the uniform Laplacian: zero on a flat regular grid's interior."""
+    return uniform_laplacian(vertices, edges).norm(dim=-1).mean()
+
+
+def face_normals(vertices, faces):
+    v0, v1, v2 = (vertices[:, faces[:, k]] for k in range(3))
+    return F.normalize(torch.cross(v1 - v0, v2 - v0, dim=-1), dim=-1, eps=1e-12)
+
+
+def normal_consistency_loss(vertices, faces, face_pairs):
+    """Mean of 1 - cos(angle) between the normals of faces that share an edge; face_pairs
+    (P, 2) lists those neighbours (edges on an open boundary excluded)."""
+    normals = face_normals(vertices, faces)
+    return (1 - (normals[:, face_pairs[:, 0]] * normals[:, face_pairs[:, 1]]).sum(-1)).mean()
+
+
+def edge_length_loss(vertices, reference_vertices, edges):
+    """Mean squared change of edge lengths (metres^2) against a reference mesh: zero under
+    rigid motion, the as-rigid-as-possible term of the reference implementation."""
+    length = (vertices[:, edges[:, 0]] - vertices[:, edges[:, 1]]).norm(dim=-1)
+    reference = (reference_vertices[:, edges[:, 0]] - reference_vertices[:, edges[:, 1]]).norm(dim=-1)
+    return (length - reference).square().mean()
+
+
+def eroded_mask(mask, pixels=2):
+    """Binary erosion of (B, H, W, 1) masks by a square of radius `pixels` (no gradient)."""
+    inverted = 1 - (mask > 0.5).to(mask.dtype).permute(0, 3, 1, 2)
+    grown = F.max_pool2d(inverted, kernel_size=2 * pixels + 1, stride=1, padding=pixels)
+    return (1 - grown).permute(0, 2, 3, 1)
+
+
+def photometric_loss(rendered, image, mask, erosion=2):
+    """L1 between rendered and input images (B, H, W, 3) inside the mask eroded by `erosion`
+    pixels, averaged over the covered pixels and channels."""
+    inside = eroded_mask(mask, erosion)
+    count = inside.sum().clamp(min=1) * rendered.shape[-1]
+    return ((rendered - image).abs() * inside).sum() / count
+
+
+def _shifted(texture, generator, sigma_px):
+    """The texture (C, H, W) sampled at every texel plus a random offset (sigma in texels)."""
+    channels, height, width = texture.shape
+    offset = torch.randn(height, width, 2, generator=generator, dtype=texture.dtype).to(texture.device) * sigma_px
+    ys, xs = torch.meshgrid(torch.arange(height, dtype=texture.dtype, device=texture.device),
+                            torch.arange(width, dtype=texture.dtype, device=texture.device), indexing="ij")
+    grid = torch.stack([(xs + 0.5 + offset[..., 0]) / width * 2 - 1,
+                        (ys + 0.5 + offset[..., 1]) / height * 2 - 1], dim=-1)
+    return F.grid_sample(texture[None], grid[None], mode="bilinear", padding_mode="border", align_corners=False)[0]
+
+
+def texture_smoothness_loss(texture, uv_mask, generator=None, sigma_px=2.0):
+    """E_t_reg: sum over texels in the UV mask of |T(I) - T(I + eps)|_1 / 3 with eps ~ N(0, 2 px),
+    normalised by the number of masked texels. texture (C, H, W), uv_mask (H, W) bool."""
+    difference = (texture - _shifted(texture, generator, sigma_px)).abs().sum(0) / 3
+    return (difference * uv_mask).sum() / uv_mask.sum().clamp(min=1)
+
+
+def normal_map_loss(normal_map, uv_mask, generator=None, sigma_px=2.0):
+    """E_n_reg: smoothness as for the albedo plus |G(I) - (0, 0, 1)|^2, all / 3, per masked texel."""
+    smooth = (normal_map - _shifted(normal_map, generator, sigma_px)).abs().sum(0)
+    flat = normal_map.new_tensor([0.0, 0.0, 1.0]).view(3, 1, 1)
+    pull = (normal_map - flat).square().sum(0)
+    return ((smooth + pull) / 3 * uv_mask).sum() / uv_mask.sum().clamp(min=1)

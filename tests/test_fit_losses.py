@@ -1,0 +1,101 @@
+"""The fit's energy terms on analytic cases."""
+import numpy as np
+import pytest
+import torch
+
+from pipeline.fit import losses
+from pipeline.render.antialias import edge_topology
+from scipy.spatial.transform import Rotation
+
+
+def grid_mesh(n=6, z=None):
+    """A flat regular n x n vertex grid in the xy plane (optionally with heights z (n, n))."""
+    ys, xs = np.mgrid[0:n, 0:n].astype(float)
+    zs = np.zeros_like(xs) if z is None else z
+    vertices = np.stack([xs.ravel(), ys.ravel(), zs.ravel()], 1) * 0.01
+    faces = []
+    for j in range(n - 1):
+        for i in range(n - 1):
+            a, b, c, d = j * n + i, j * n + i + 1, (j + 1) * n + i, (j + 1) * n + i + 1
+            faces += [(a, b, d), (a, d, c)]
+    return torch.tensor(vertices)[None], torch.tensor(faces)
+
+
+def test_laplacian_vanishes_on_flat_interior_and_sees_a_bump():
+    vertices, faces = grid_mesh()
+    edges = edge_topology(faces).edges
+    lap = losses.uniform_laplacian(vertices, edges)[0].numpy()
+    interior = [j * 6 + i for j in range(1, 5) for i in range(1, 5)]
+    assert np.abs(lap[interior]).max() < 1e-15
+    bumped = vertices.clone()
+    bumped[0, 14, 2] = 0.005        # an interior vertex raised by 5 mm
+    lap = losses.uniform_laplacian(bumped, edges)[0]
+    assert lap[14, 2].item() == pytest.approx(-0.005)   # its neighbours are all flat
+
+
+def test_normal_consistency_of_a_fold():
+    vertices = torch.tensor([[[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]]], dtype=torch.float64)
+    faces = torch.tensor([[0, 1, 3], [0, 3, 2]])
+    pairs = torch.tensor([[0, 1]])
+    assert losses.normal_consistency_loss(vertices, faces, pairs).item() == pytest.approx(0.0, abs=1e-15)
+    folded = vertices.clone()
+    folded[0, 2, 2] = 1.0             # lift one corner: the second face tilts by 45 degrees about the diagonal
+    n1 = np.array([0, 0, 1.0])
+    v0, v3, v2 = folded[0, 0].numpy(), folded[0, 3].numpy(), folded[0, 2].numpy()
+    n2 = np.cross(v3 - v0, v2 - v0)
+    n2 /= np.linalg.norm(n2)
+    expected = 1 - n1 @ n2
+    assert losses.normal_consistency_loss(folded, faces, pairs).item() == pytest.approx(expected)
+
+
+def test_edge_length_term_is_blind_to_rigid_motion():
+    vertices, faces = grid_mesh()
+    edges = edge_topology(faces).edges
+    moved = torch.tensor(Rotation.from_rotvec([0.3, -0.8, 0.2]).apply(vertices[0].numpy()) + [0.1, 0.2, -0.3])[None]
+    assert losses.edge_length_loss(moved, vertices, edges).item() < 1e-30
+    stretched = vertices * 1.1
+    lengths = (vertices[0, edges[:, 0]] - vertices[0, edges[:, 1]]).norm(dim=-1)
+    assert losses.edge_length_loss(stretched, vertices, edges).item() == pytest.approx((0.1 * lengths).square().mean().item())
+
+
+def test_keypoint_anchor_in_units_of_ten_centimetres():
+    initial = torch.zeros(2, 21, 3, dtype=torch.float64)
+    moved = initial.clone()
+    moved[:, 5, 0] = 0.01            # one keypoint 1 cm off in both frames
+    assert losses.keypoint_anchor_loss(moved, initial).item() == pytest.approx(0.01 / 21)
+    shifted = initial + torch.tensor([0.3, 0.1, 0.2], dtype=torch.float64)  # a global shift is free
+    assert losses.keypoint_anchor_loss(shifted, initial).item() == pytest.approx(0.0)
+
+
+def test_photometric_loss_ignores_the_mask_border():
+    mask = torch.zeros(1, 20, 20, 1, dtype=torch.float64)
+    mask[:, 5:15, 5:15] = 1
+    eroded = losses.eroded_mask(mask, 2)
+    assert eroded.sum().item() == 36    # 10 x 10 square shrunk by 2 px on each side
+    image = torch.rand(1, 20, 20, 3, dtype=torch.float64)
+    rendered = image.clone()
+    rendered[:, 5:7] += 1.0            # error only in the border band
+    assert losses.photometric_loss(rendered, image, mask).item() == 0.0
+    rendered[:, 9, 9] += 0.36
+    assert losses.photometric_loss(rendered, image, mask).item() == pytest.approx(0.36 / 36)
+
+
+def test_texture_regularisers():
+    mask = torch.ones(32, 32, dtype=torch.bool)
+    flat = torch.full((3, 32, 32), 0.5, dtype=torch.float64)
+    assert losses.texture_smoothness_loss(flat, mask, torch.Generator().manual_seed(0)).item() == pytest.approx(0.0)
+    noisy = torch.rand(3, 32, 32, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    assert losses.texture_smoothness_loss(noisy, mask, torch.Generator().manual_seed(0)).item() > 0.1
+    up = torch.zeros(3, 32, 32, dtype=torch.float64)
+    up[2] = 1
+    assert losses.normal_map_loss(up, mask, torch.Generator().manual_seed(0)).item() == pytest.approx(0.0)
+    tilted = up.clone()
+    tilted[0] = 0.3
+    assert losses.normal_map_loss(tilted, mask, torch.Generator().manual_seed(0)).item() == pytest.approx(0.09 / 3)
+
+
+def test_silhouette_and_displacement_terms():
+    mask = torch.zeros(1, 4, 4, 1)
+    alpha = torch.full((1, 4, 4, 1), 0.25)
+    assert losses.silhouette_loss(alpha, mask).item() == pytest.approx(0.25)
+    assert losses.displacement_loss(torch.tensor([0.001, -0.002])).item() == pytest.approx(5e-6)
