@@ -8,6 +8,7 @@ an interrupted clip is recognisably incomplete).
 """
 from __future__ import annotations
 
+import dataclasses
 import shutil
 import sys
 import time
@@ -27,7 +28,7 @@ from .identity import make_identity, personal_offsets
 from .lighting import setup_lighting
 from .material import skin_material
 from .motions import make_motion
-from .passes import configure_cycles, make_mask_scene, render_still
+from .passes import configure_cycles, make_mask_scene, render_still, silenced
 from .rig import build_hand_rig
 from .viewpoint import camera_intrinsics, fit_distance, place_hand, view_rotation
 
@@ -65,6 +66,27 @@ def hand_pivot_and_radius(data, betas):
     return pivot, float(np.linalg.norm(hand - pivot, axis=1).max())
 
 
+@dataclasses.dataclass
+class Person:
+    data: object          # HandModelData of the requested side and mode
+    identity: object      # identity.Identity
+    offsets: np.ndarray   # (V, 3) rest-space personal displacements of `data`
+    appearance: object    # appearance.Appearance
+
+
+def make_person(settings, right=None, with_appearance=True):
+    """The person of `settings`, built on the right hand and mirrored for a left one (so both
+    sides of one identity share shape, personal geometry and albedo image)."""
+    right = right if right is not None else load_right_model(settings)
+    identity = make_identity(settings.identity, settings.skin_tone, settings.size, settings.betas, settings.features)
+    offsets = personal_offsets(right, identity)
+    appearance = make_appearance(right, identity, settings.texture_size) if with_appearance else None
+    data = right
+    if settings.side == "left":
+        data, offsets = mirror.mirror_model_data(right), mirror.mirror_points(offsets)
+    return Person(data=data, identity=identity, offsets=offsets, appearance=appearance)
+
+
 def render_clip(settings, log=print):
     """Render the clip described by `settings` (options.ClipSettings). Returns a summary dict."""
     started = time.perf_counter()
@@ -72,14 +94,9 @@ def render_clip(settings, log=print):
     prepare_output(settings)
     F = settings.frame_count
 
-    # the person, built on the right hand and mirrored for a left one
-    identity = make_identity(settings.identity, settings.skin_tone, settings.size, settings.betas, settings.features)
+    person = make_person(settings, right)
+    data, identity, offsets, appearance = person.data, person.identity, person.offsets, person.appearance
     betas = identity.betas
-    offsets = personal_offsets(right, identity)
-    appearance = make_appearance(right, identity, settings.texture_size)
-    data = right if settings.side == "right" else mirror.mirror_model_data(right)
-    if settings.side == "left":
-        offsets = mirror.mirror_points(offsets)
     albedo_path = seq.write_png(settings.out / seq.GT_ALBEDO_FILE, appearance.albedo)
 
     # motion and camera
@@ -147,7 +164,8 @@ def _new_scene(settings, K):
     scene.render.resolution_x, scene.render.resolution_y = settings.width, settings.height
     scene.render.resolution_percentage = 100
     scene.render.pixel_aspect_x = scene.render.pixel_aspect_y = 1.0
-    configure_cycles(scene, settings.samples, settings.denoise)
+    with silenced(not settings.verbose):  # Cycles probes for GPUs and says so
+        configure_cycles(scene, settings.samples, settings.denoise)
     camera_data = bpy.data.cameras.new("camera")
     for key, value in camera_convention.blender_camera_settings(K, settings.width, settings.height).items():
         setattr(camera_data, key, value)

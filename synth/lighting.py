@@ -102,10 +102,10 @@ def _world(scene, ambient, background, rng):
     colours = rng.uniform(0.02, 0.5, size=(2, 3))
     coordinates = nodes.new("ShaderNodeTexCoord")
     noise = nodes.new("ShaderNodeTexNoise")
+    noise.noise_dimensions = "4D"  # the W input exists only in 4D
     noise.inputs["Scale"].default_value = float(rng.uniform(2.0, 6.0))
     noise.inputs["Detail"].default_value = 6.0
     noise.inputs["W"].default_value = float(rng.uniform(0, 100))
-    noise.noise_dimensions = "4D"
     ramp = nodes.new("ShaderNodeValToRGB")
     ramp.color_ramp.elements[0].color = (*colours[0], 1.0)
     ramp.color_ramp.elements[1].color = (*colours[1], 1.0)

@@ -55,8 +55,8 @@ OPPOSITION = {  # thumb tip on each fingertip (found by minimising their distanc
     "ring": _pose({13: (26, -3, 5), 14: (27, -1, 2), 15: (12, 0, 1), 10: (42, 5, -5), 11: (60, 2, -3), 12: (36, 1, -2)}),
     "pinky": _pose({13: (30, -7, 9), 14: (33, -4, 4), 15: (28, -1, 3), 7: (48, 6, -5), 8: (56, 3, -4), 9: (28, 1, -3)}),
 }
-FINGERS_SEQUENCE = (OPEN, FIST, OPEN, SPREAD, OPEN, OPPOSITION["index"], OPEN, OPPOSITION["middle"], OPEN,
-                    OPPOSITION["ring"], OPEN, OPPOSITION["pinky"], OPEN)
+FINGERS_SEQUENCE = (OPEN, FIST, OPEN, SPREAD, OPEN, OPPOSITION["index"], OPPOSITION["middle"],
+                    OPPOSITION["ring"], OPPOSITION["pinky"], OPEN)
 
 
 def _ease(u):
@@ -98,7 +98,7 @@ def make_motion(name, frame_count, fps, limits, mode="hand", seed=0):
         pose = _keyframes(FINGERS_SEQUENCE, u)
     else:
         rng = np.random.default_rng([seed, 4])
-        curl = 0.5 + 0.5 * _smooth_signal(rng, times, 5)       # per digit, 0 open .. 1 fist
+        curl = 0.5 + 0.5 * _smooth_signal(rng, times, 5, (0.1, 0.4))  # per digit, 0 open .. 1 fist
         spread = _smooth_signal(rng, times, 1)[:, 0]
         pose = np.repeat(OPEN[None], frame_count, axis=0)
         for k, digit in enumerate(("thumb", "index", "middle", "ring", "pinky")):

@@ -109,7 +109,7 @@ def blender_argv(argv):
 
 
 def parse_clip_args(args, prog="render.py") -> ClipSettings:
-    namespace = build_parser(prog).parse_args(args)
+    namespace = build_parser(prog).parse_args([str(a) for a in args])
     values = vars(namespace)
     preview = values.pop("preview")
     betas = values.pop("betas")

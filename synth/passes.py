@@ -104,23 +104,28 @@ def make_mask_scene(source, hand_collection, camera, engine="workbench"):
 def render_still(scene, path, quiet=True):
     """Render `scene` and write its image to `path` (PNG)."""
     scene.render.filepath = str(path)
-    with _silenced(quiet):
+    with silenced(quiet):
         bpy.ops.render.render(write_still=True, scene=scene.name)
 
 
 @contextlib.contextmanager
-def _silenced(quiet):
-    """Hide Blender's per-render progress lines (written by C code to the stdout file descriptor)."""
+def silenced(quiet):
+    """Hide Blender's per-render progress lines and its OpenGL/CUDA probing notes (written by C
+    code straight to the stdout and stderr file descriptors). Errors still raise in Python."""
     if not quiet:
         yield
         return
     sys.stdout.flush()
-    saved = os.dup(1)
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
     with open(os.devnull, "w") as null:
         os.dup2(null.fileno(), 1)
+        os.dup2(null.fileno(), 2)
         try:
             yield
         finally:
             sys.stdout.flush()
-            os.dup2(saved, 1)
-            os.close(saved)
+            sys.stderr.flush()
+            for fd, copy in zip((1, 2), saved):
+                os.dup2(copy, fd)
+                os.close(copy)
