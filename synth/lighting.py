@@ -36,9 +36,9 @@ def setup_lighting(scene, preset, background, target, seed=0, collection=None):
         lights.append(_sun(collection, _unit([-0.5, -0.7, -0.5]), strength=2.5, angle_deg=0.5))
     elif preset == "three":
         target = np.asarray(target, dtype=np.float64)
-        lights.append(_point(collection, "key", target + 0.8 * _unit([-0.6, -0.5, -0.6]), 20.0, 0.03))
-        lights.append(_point(collection, "fill", target + 0.9 * _unit([0.8, 0.1, -0.6]), 8.0, 0.15))
-        lights.append(_point(collection, "rim", target + 0.8 * _unit([0.3, -0.6, 0.75]), 25.0, 0.03))
+        lights.append(_point(collection, "key", target + 0.8 * _unit([-0.6, -0.5, -0.6]), 12.0, 0.1))
+        lights.append(_point(collection, "fill", target + 0.9 * _unit([0.8, 0.1, -0.6]), 5.0, 0.2))
+        lights.append(_point(collection, "rim", target + 0.8 * _unit([0.3, -0.6, 0.75]), 15.0, 0.1))
     backdrop = _world(scene, ambient, background, rng)
     return {"preset": preset, "ambient": {"colour": [1.0, 1.0, 1.0], "strength": ambient},
             "lights": lights, "background": backdrop, "frame": "camera (OpenCV)"}

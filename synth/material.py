@@ -37,7 +37,7 @@ def skin_material(albedo_path, roughness, skin_tone, name="skin"):
     shader.inputs["Subsurface Weight"].default_value = 0.6
     shader.inputs["Subsurface Radius"].default_value = (1.0, 0.35, 0.2)
     shader.inputs["Subsurface Scale"].default_value = 0.002 * (1.0 - 0.5 * skin_tone)
-    shader.inputs["Specular IOR Level"].default_value = 0.45
+    shader.inputs["Specular IOR Level"].default_value = 0.35
     shader.inputs["IOR"].default_value = 1.4
     return material
 
