@@ -85,7 +85,6 @@ def make_appearance(data, identity, size=512):
     if "scars" in identity.features:
         scar = _scars(points, palmar, parts, rng)
         colour = colour + (srgb_to_linear(np.array(SCAR_COLOUR) / 255) * (0.6 + 0.4 * base) - colour) * 0.5 * scar[:, None]
-        roughness = roughness - 0.15 * scar
     if "tattoo" in identity.features:
         ink = 0.85 * _tattoo(points, palmar, parts, identity.betas[0], rng)
         colour = colour + (srgb_to_linear(np.array(INK_COLOUR) / 255) - colour) * ink[:, None]

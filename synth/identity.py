@@ -15,6 +15,7 @@ NUM_BETAS = 12
 FINGERTIPS = {"thumb": (15, 4), "index": (3, 8), "middle": (6, 12), "ring": (12, 16), "pinky": (9, 20)}
 """Per digit: (distal joint index, fingertip keypoint index)."""
 DIGIT_PART = {"thumb": 1, "index": 2, "middle": 3, "ring": 4, "pinky": 5}  # PART_NAMES indices
+TIP_FADE_RADIUS = 0.012  # metres: the personal field fades to zero at the fingertip keypoints
 FEATURES = ("freckles", "tattoo", "scars", "polish")
 POLISH_COLOURS = ((150, 10, 25), (200, 40, 90), (40, 30, 45), (230, 150, 160), (30, 60, 140))  # sRGB
 
@@ -111,7 +112,7 @@ def personal_offsets(data, identity, betas=None):
     field = np.clip(smooth_field(data.vertices, identity.seed), -2.5, 2.5) * identity.displacement_mm * 1e-3
     for digit, (_, tip) in FINGERTIPS.items():  # keep the fingertip keypoints on the skin
         distance = np.linalg.norm(data.vertices - data.keypoints[tip], axis=1)
-        field *= _smoothstep(np.clip(distance / 0.008, 0, 1))
+        field *= _smoothstep(np.clip(distance / TIP_FADE_RADIUS, 0, 1))
     nails = nail_weight(data, data.vertices, data.vertex_parts) * identity.nail_height_mm * 1e-3
     return (field + nails)[:, None] * normals
 

@@ -120,3 +120,18 @@ def test_albedo_follows_skin_tone(right):
     assert light.albedo[back].mean() > 190 and dark.albedo[back].mean() < 110
     again = appearance.make_appearance(data, identity.make_identity(1, skin_tone=0.0, features=()), 128)
     np.testing.assert_array_equal(again.albedo, light.albedo)
+
+
+def test_dataset_plan_meets_every_lighting_preset():
+    from synth import dataset
+
+    clips = dataset.plan(list(dataset.IDENTITIES), ["flip", "fingers"], list(dataset.VIEWS), ["ambient", "sun", "three"])
+    assert len(clips) == len(dataset.IDENTITIES) * 2 * len(dataset.VIEWS) == len({name for name, _ in clips})
+    presets = {}
+    for name, _ in clips:
+        identity, motion, view, preset = name.split("_")
+        for key in (identity, motion, view, (identity, motion)):
+            presets.setdefault(key, set()).add(preset)
+    assert all(found == {"ambient", "sun", "three"} for found in presets.values())
+    full = dataset.plan(["medium-light"], ["flip"], ["front"], ["ambient", "sun", "three"], full=True)
+    assert [name.split("_")[-1] for name, _ in full] == ["ambient", "sun", "three"]
