@@ -7,14 +7,13 @@ import numpy as np
 
 
 def float_image(name, values):
-    """A packed, non-colour Blender image from (H, W) values in [0, 1] (top row first)."""
+    """An in-memory, non-colour Blender image from (H, W) values in [0, 1] (top row first)."""
     height, width = values.shape
     image = bpy.data.images.new(name, width, height, alpha=False, float_buffer=True, is_data=True)
+    image.colorspace_settings.name = "Non-Color"  # before the pixels: changing it reloads the buffer
     rgba = np.ones((height, width, 4), dtype=np.float32)
     rgba[..., :3] = values[::-1, :, None]  # Blender stores the bottom row first
     image.pixels.foreach_set(rgba.ravel())
-    image.colorspace_settings.name = "Non-Color"
-    image.pack()
     return image
 
 

@@ -227,3 +227,19 @@ def test_impossible_settings(tmp_path, args, message):
     with pytest.raises(SynthError, match=message) as error:
         parse_clip_args(["--out", tmp_path / "x", *args])
     assert "\n" not in str(error.value)
+
+
+def test_blender_renders_with_the_saved_albedo_and_the_roughness_map(clip):
+    settings, info, gt = clip
+    material = bpy.data.materials["skin"]
+    images = {node.image.name: node.image for node in material.node_tree.nodes if node.type == "TEX_IMAGE"}
+    albedo = next(image for image in images.values() if not image.name.endswith("roughness"))
+    width, height = albedo.size
+    pixels = np.empty(width * height * 4, dtype=np.float32)
+    albedo.pixels.foreach_get(pixels)
+    stored = seq.read_rgb(settings.out / seq.GT_ALBEDO_FILE)
+    np.testing.assert_array_equal(np.round(pixels.reshape(height, width, 4)[::-1, :, :3] * 255), stored)
+    roughness = images["skin_roughness"]
+    values = np.empty(roughness.size[0] * roughness.size[1] * 4, dtype=np.float32)
+    roughness.pixels.foreach_get(values)
+    assert 0.3 < values.reshape(-1, 4)[:, 0].mean() < 0.7
