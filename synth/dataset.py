@@ -96,7 +96,10 @@ def main(argv=None):
     from synth.clip import render_clip
 
     index_path = os.path.join(args.out, "dataset.json")
-    index = json.load(open(index_path)) if os.path.isfile(index_path) else {"clips": {}}
+    index = {"clips": {}}
+    if os.path.isfile(index_path):
+        with open(index_path) as handle:
+            index = json.load(handle)
     started = time.perf_counter()
     for number, ((name, clip), s) in enumerate(zip(clips, settings)):
         if os.path.isfile(os.path.join(s.out, "sequence.json")) and not args.overwrite:

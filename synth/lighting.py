@@ -13,8 +13,8 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
-PRESETS = ("ambient", "sun", "three")
-BACKGROUNDS = ("plain", "procedural")
+from .options import BACKGROUNDS, LIGHTING as PRESETS
+
 PLAIN_BACKGROUND = (0.18, 0.18, 0.18)  # linear RGB
 
 
@@ -44,7 +44,7 @@ def setup_lighting(scene, preset, background, target, seed=0, collection=None):
             "lights": lights, "background": backdrop, "frame": "camera (OpenCV)"}
 
 
-def _orient_light(obj, towards_light):
+def _orient_light(towards_light):
     """Point the light's -Z (its emission direction) opposite to `towards_light`."""
     z = _unit(towards_light)
     x = _unit(np.cross([0.0, 1.0, 0.0], z)) if abs(z[1]) < 0.99 else _unit(np.cross([1.0, 0.0, 0.0], z))
@@ -59,7 +59,7 @@ def _sun(collection, towards_light, strength, angle_deg):
     data.energy = strength
     data.angle = np.radians(angle_deg)
     obj = bpy.data.objects.new("sun", data)
-    obj.matrix_world = Matrix(_orient_light(obj, towards_light).tolist())
+    obj.matrix_world = Matrix(_orient_light(towards_light).tolist())
     collection.objects.link(obj)
     return {"type": "sun", "direction_to_light": towards_light.tolist(), "irradiance_w_m2": strength,
             "angle_deg": angle_deg, "casts_shadows": True}

@@ -15,8 +15,7 @@ import sys
 import bpy
 
 from .material import flat_material
-
-MASK_ENGINES = ("workbench", "cycles")
+from .options import MASK_ENGINES
 
 
 def configure_cycles(scene, samples, denoise, seed=0):
