@@ -14,6 +14,7 @@ import torch
 from pipeline.formats import camera
 from pipeline.formats import sequence_folder as seq
 from pipeline.handmodel.lbs import HandModel, load_model_data
+from pipeline.render.renderer import RenderMesh, render
 
 bpy = pytest.importorskip("bpy")
 
@@ -139,7 +140,7 @@ def test_keypoints_project_into_the_masks(clip):
         assert np.delete(distance, TIPS).max() <= 0.75, distance
 
 
-def test_masks_are_binary_and_match_an_independent_rasterisation(clip):
+def test_masks_are_binary_and_match_an_independent_rasterisation_and_our_renderer(clip):
     settings, info, gt = clip
     faces = load_model_data(gt.mode, gt.side).faces
     for frame in range(gt.frame_count):
@@ -149,6 +150,11 @@ def test_masks_are_binary_and_match_an_independent_rasterisation(clip):
         ours = silhouette(gt.vertices[frame].astype(np.float64), faces, info.K, info.width, info.height)
         assert iou(mask, ours) >= 0.99, iou(mask, ours)
         assert 0.02 < mask.mean() < 0.9
+        # and the pipeline's own renderer, through its camera convention
+        rendered = render(torch.as_tensor(gt.vertices[frame:frame + 1], dtype=torch.float64),
+                          RenderMesh(torch.as_tensor(faces, dtype=torch.long)), torch.as_tensor(info.K),
+                          info.height, info.width, outputs=("alpha",), antialiased=False)["alpha"]
+        assert iou(mask, rendered[0, ..., 0].numpy() > 0.5) >= 0.99
 
 
 def test_cycles_mask_engine_agrees_with_workbench(clip, tmp_path):
