@@ -25,6 +25,16 @@ def _model_info(args):
     print(anatomy_report(getattr(args, "model", None)))
 
 
+def _fit(args):
+    from .fit.fitting import fit
+
+    report = fit(args.sequence, args.out, preset=args.preset, resume=args.resume, progress=args.progress,
+                 device=args.device, shadows=args.shadows)
+    scores = report["metrics"]
+    print(f"wrote {args.out}: silhouette IoU min {scores['silhouette_iou_min']:.3f}, "
+          f"PSNR in the mask {scores['psnr_mean']:.1f} dB, {report['total_seconds']:.0f} s")
+
+
 def _demo(args):
     """The quick-start job: build the hand model from scratch and picture it."""
     out = Path(args.out)
@@ -40,6 +50,16 @@ def build_parser():
     demo = commands.add_parser("demo", help="run the built-in example")
     demo.add_argument("--out", default="harp_demo", help="output folder (default: harp_demo)")
     demo.set_defaults(run=_demo)
+
+    fit = commands.add_parser("fit", help="fit an avatar to a sequence folder that has an init.npz")
+    fit.add_argument("sequence", help="sequence folder")
+    fit.add_argument("--out", required=True, help="avatar folder to write")
+    fit.add_argument("--preset", choices=("fast", "balanced", "full"), default="fast")
+    fit.add_argument("--shadows", choices=("auto", "on", "off"), default="auto")
+    fit.add_argument("--resume", action="store_true", help="continue from the avatar folder's checkpoint")
+    fit.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar")
+    fit.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
+    fit.set_defaults(run=_fit)
 
     model = commands.add_parser("model", help="the parametric hand model")
     model_commands = model.add_subparsers(dest="model_command", required=True)

@@ -32,7 +32,8 @@ def test_noise_has_the_requested_size(ground_truth):
     angle = torch.rad2deg(torch.acos(((relative.diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2).clamp(-1, 1)))
     np.testing.assert_allclose(angle.numpy(), 10.0, atol=1e-6)
     np.testing.assert_allclose(np.linalg.norm(estimate.transl - ground_truth.transl, axis=1), 0.01)
-    assert np.all(estimate.betas == 0)
+    assert np.array_equal(estimate.betas, ground_truth.betas)
+    assert np.all(ground_truth_with_noise(ground_truth, keep_shape=False).betas == 0)
     np.testing.assert_allclose(compose_axis_angle(ground_truth.pose[0], np.zeros((16, 3))), ground_truth.pose[0], atol=1e-9)
 
 

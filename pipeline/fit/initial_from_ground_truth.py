@@ -26,10 +26,10 @@ def compose_axis_angle(first, second):
 
 
 def ground_truth_with_noise(gt, joint_degrees=10.0, translation_m=0.01, orient_degrees=0.0, seed=0,
-                            keep_shape=False):
+                            keep_shape=True):
     """InitialEstimate from GroundTruth: every joint rotated by `joint_degrees` about a random
     axis, the wrist moved by `translation_m` in a random direction, the global orientation by
-    `orient_degrees`; shape reset to the average hand unless `keep_shape`."""
+    `orient_degrees`; the true shape is kept unless `keep_shape` is False (average hand)."""
     generator = np.random.default_rng(seed)
     frames = gt.frame_count
     pose = compose_axis_angle(gt.pose.reshape(-1, 3),

@@ -1,0 +1,79 @@
+"""The avatar being fitted: every optimised parameter and the posed, displaced mesh it makes.
+
+    V = LBS_subdivided(pose, shape) + d * n     (method_facts: one scalar per subdivided vertex,
+                                                 along the posed vertex normal)
+Per frame: global rotation, translation, joint rotations (the wrist's only in hand+forearm
+mode). Shared: shape, displacements, albedo texture, normal map, light position, ambient ratio.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..handmodel.lbs import HandModel
+from ..render.renderer import Appearance, Light, RenderMesh
+from ..render.shading import vertex_normals
+
+SKIN_RGB = (232 / 255, 190 / 255, 172 / 255)
+INITIAL_AMBIENT = 0.6
+APPEARANCE = ("albedo", "normal_map", "light_position", "ambient_logit")
+
+
+class Avatar(torch.nn.Module):
+    """Parameters of one fit. `model` is the subdivided HandModel of the clip's mode and side."""
+
+    def __init__(self, model: HandModel, initial, frames, texture_size=512, light_position=None):
+        super().__init__()
+        self.model = model
+        dtype, device = model.v_template.dtype, model.v_template.device
+
+        def parameter(array):
+            return torch.nn.Parameter(torch.as_tensor(np.asarray(array), dtype=dtype, device=device).clone())
+
+        self.global_orient = parameter(initial.global_orient[frames])
+        self.transl = parameter(initial.transl[frames])
+        self.pose = parameter(initial.pose[frames])
+        self.betas = parameter(initial.betas)
+        self.displacement = parameter(np.zeros(model.data.num_vertices))
+        self.albedo = parameter(np.broadcast_to(np.array(SKIN_RGB)[:, None, None], (3, texture_size, texture_size)))
+        flat = np.zeros((3, texture_size, texture_size))
+        flat[2] = 1.0
+        self.normal_map = parameter(flat)
+        if light_position is None:  # in front of the hand, above the camera
+            light_position = np.asarray(initial.transl[frames]).mean(0) * np.array([1.0, 1.0, 0.5]) + [0.0, -0.3, 0.0]
+        self.light_position = parameter(light_position)
+        self.ambient_logit = parameter(np.log(INITIAL_AMBIENT / (1 - INITIAL_AMBIENT)))
+        # the wrist joint rotates the hand against the forearm: free only with a forearm
+        self.register_buffer("pose_mask", torch.ones(16, 3, dtype=dtype, device=device))
+        if model.mode == "hand":
+            self.pose_mask[0] = 0
+        self.mesh = RenderMesh.from_model_data(model.data, device=device, dtype=dtype)
+
+    def parameter_group(self, names):
+        return [getattr(self, name) for name in names]
+
+    @property
+    def ambient(self):
+        return torch.sigmoid(self.ambient_logit)
+
+    def appearance(self, normal_map=True):
+        unit = torch.nn.functional.normalize(self.normal_map, dim=0, eps=1e-12)
+        return Appearance(self.albedo.clamp(0, 1), unit if normal_map else None)
+
+    def light(self, shadows=False):
+        return Light(self.light_position, self.ambient, shadows=shadows)
+
+    def posed(self, batch):
+        """(vertices (B, V, 3), keypoints (B, K, 3)) of the frames `batch` (indices into the fit's
+        frames), displaced along the posed normals."""
+        pose = self.pose[batch] * self.pose_mask
+        out = self.model(self.betas, pose, self.global_orient[batch], self.transl[batch])
+        normals = vertex_normals(out.vertices, self.mesh.faces)
+        return out.vertices + self.displacement[None, :, None] * normals, out.keypoints
+
+    def rest_mesh(self):
+        """Personalised rest vertices (V, 3): shape applied, displaced along the rest normals."""
+        with torch.no_grad():
+            vertices, _, _ = self.model.shaped(self.betas)
+            normals = vertex_normals(vertices[None], self.mesh.faces)[0]
+            return vertices + self.displacement[:, None] * normals

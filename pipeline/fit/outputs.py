@@ -1,0 +1,127 @@
+"""What a finished fit writes: the avatar folder, report.json with metrics, a picture grid of
+input / render / difference, and an overlay video."""
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from .. import metrics
+from ..formats import avatar_folder as av
+from ..formats import hand_model_file as fmt
+from ..formats.sequence_folder import write_png
+from ..render.renderer import render
+
+GRID_FILE = "fit_grid.png"
+VIDEO_FILE = "overlay.mp4"
+REPORT_FILE = "report.json"
+
+
+@torch.no_grad()
+def render_all(avatar, clip, shadows, batch_size=8):
+    """Rendered rgb and alpha (F, H, W, C) of every fitted frame."""
+    rgb, alpha = [], []
+    for start in range(0, len(clip.frames), batch_size):
+        batch = torch.arange(start, min(start + batch_size, len(clip.frames)), device=clip.images.device)
+        vertices, _ = avatar.posed(batch)
+        images = render(vertices, avatar.mesh, clip.K, clip.height, clip.width, outputs=("rgb", "alpha"),
+                        appearance=avatar.appearance(), light=avatar.light(shadows),
+                        background=torch.zeros(3, dtype=vertices.dtype, device=vertices.device))
+        rgb.append(images["rgb"])
+        alpha.append(images["alpha"])
+    return torch.cat(rgb), torch.cat(alpha)
+
+
+def evaluate(rgb, alpha, clip):
+    """Per-frame silhouette IoU and, inside the mask, L1 and PSNR; MS-SSIM on the masked frames."""
+    masks = clip.masks
+    target = clip.images * masks
+    composed = rgb * masks
+    iou = metrics.silhouette_iou(alpha, masks)
+    l1 = torch.stack([metrics.l1(composed[i:i + 1], target[i:i + 1], masks[i:i + 1]) for i in range(len(rgb))])
+    psnr = torch.stack([metrics.psnr(composed[i:i + 1], target[i:i + 1], masks[i:i + 1]) for i in range(len(rgb))])
+    result = {"silhouette_iou": iou.tolist(), "l1": l1.tolist(), "psnr": psnr.tolist(),
+              "silhouette_iou_min": float(iou.min()), "psnr_mean": float(psnr.mean()), "l1_mean": float(l1.mean())}
+    if min(clip.height, clip.width) >= 176:
+        ms = metrics.ms_ssim(composed.double(), target.double())
+        result.update(ms_ssim=ms.tolist(), ms_ssim_mean=float(ms.mean()))
+    return result
+
+
+def write_outputs(out, sequence, avatar, clip, settings, state, initial, perceptual_name):
+    out = Path(out)
+    start = time.time()
+    shadows = bool(state["shadows"]["on"])
+    rgb, alpha = render_all(avatar, clip, shadows)
+    scores = evaluate(rgb, alpha, clip)
+    _write_avatar(out, avatar, clip, settings, state, initial, perceptual_name, shadows)
+    _write_grid(out / GRID_FILE, clip, rgb, alpha)
+    _write_video(out / VIDEO_FILE, clip, rgb, alpha)
+    last = {}
+    for entry in state["history"]:
+        last[entry["stage"]] = entry
+    report = {
+        "sequence": str(sequence), "frames": clip.frames.tolist(), "preset": settings.preset,
+        "stage_seconds": dict(zip(["geometry", "geometry+appearance", "appearance"], state["stage_seconds"])),
+        "total_seconds": float(sum(state["stage_seconds"])), "output_seconds": time.time() - start,
+        "final_losses": last, "metrics": scores, "shadows": state["shadows"], "events": state["events"],
+        "perceptual_term": perceptual_name, "ambient": float(avatar.ambient),
+        "light_position": avatar.light_position.detach().cpu().tolist(),
+    }
+    (out / REPORT_FILE).write_text(__import__("json").dumps(report, indent=2))
+    return report
+
+
+def _write_avatar(out, avatar, clip, settings, state, initial, perceptual_name, shadows):
+    model_data = avatar.model.data
+    rest = avatar.rest_mesh().cpu().numpy().astype(np.float64)
+    betas = avatar.betas.detach().cpu().numpy().astype(np.float64)
+    joints = model_data.joints + model_data.joint_shapedirs @ betas
+    keypoints = model_data.keypoints + model_data.keypoint_shapedirs @ betas
+    rig = dataclasses.replace(model_data, vertices=rest, joints=joints, keypoints=keypoints,
+                              metadata={**model_data.metadata, "betas_baked_in": betas.tolist()})
+    fmt.save_hand_model(rig, out / av.RIG_FILE)
+    av.write_obj(out / av.MESH_FILE, rest, model_data.faces, model_data.uvs, model_data.faces_uv)
+    albedo = (avatar.albedo.detach().clamp(0, 1).cpu().numpy().transpose(1, 2, 0) * 255).round().astype(np.uint8)
+    write_png(out / av.ALBEDO_FILE, albedo)
+    normals = torch.nn.functional.normalize(avatar.normal_map.detach(), dim=0).cpu().numpy().transpose(1, 2, 0)
+    write_png(out / av.NORMAL_FILE, av.encode_normal_map(normals))
+    av.write_poses(out, avatar.global_orient.detach().cpu().numpy(), avatar.transl.detach().cpu().numpy(),
+                   (avatar.pose * avatar.pose_mask).detach().cpu().numpy(), clip.frames)
+    av.write_avatar_json(out, {
+        "mode": model_data.mode, "side": model_data.side, "betas": betas.tolist(),
+        "light": {"position": avatar.light_position.detach().cpu().tolist(), "ambient": float(avatar.ambient),
+                  "shadows": shadows},
+        "camera": {"K": clip.K.cpu().tolist(), "width": clip.width, "height": clip.height},
+        "settings": {k: v for k, v in vars(settings).items() if k != "weights"} | {"weights": settings.weights},
+        "stage_seconds": state["stage_seconds"], "perceptual_term": perceptual_name,
+        "initialisation": initial.source,
+    })
+
+
+def _to_uint8(image):
+    return (image.clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
+
+
+def _write_grid(path, clip, rgb, alpha, columns=6):
+    """Rows: input, render over the input's background, |difference| x4, for sampled frames."""
+    picks = np.unique(np.linspace(0, len(clip.frames) - 1, min(columns, len(clip.frames))).astype(int))
+    composite = rgb * alpha + clip.images * (1 - alpha)
+    rows = [clip.images[picks], composite[picks], ((composite - clip.images).abs() * 4)[picks]]
+    tiles = [np.concatenate(list(_to_uint8(row)), axis=1) for row in rows]
+    cv2.imwrite(str(path), np.concatenate(tiles, axis=0)[:, :, ::-1])
+
+
+def _write_video(path, clip, rgb, alpha, fps=None):
+    """Input | render composited over the input, side by side (mp4)."""
+    fps = fps or max(1.0, clip.info.fps * len(clip.frames) / max(clip.info.frame_count, 1))
+    composite = _to_uint8(rgb * alpha + clip.images * (1 - alpha))
+    inputs = _to_uint8(clip.images)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (2 * clip.width, clip.height))
+    for a, b in zip(inputs, composite):
+        writer.write(np.concatenate([a, b], axis=1)[:, :, ::-1])
+    writer.release()

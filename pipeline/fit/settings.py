@@ -1,0 +1,69 @@
+"""Fit settings: presets, the stage schedule and the energy weights (Table C.1 by default)."""
+from __future__ import annotations
+
+import dataclasses
+
+WEIGHTS = {  # appendix Table C.1
+    "silhouette": 7.0, "keypoint_anchor": 10.0, "displacement": 2.0, "laplacian": 4.0,
+    "normal_consistency": 0.1, "edge_length": 0.2,
+    "photometric": 1.0, "perceptual": 1.0, "texture": 2.0, "normal_map": 0.5,
+}
+GEOMETRY_TERMS = ("silhouette", "keypoint_anchor", "displacement", "laplacian", "normal_consistency", "edge_length")
+APPEARANCE_TERMS = ("photometric", "perceptual", "texture", "normal_map")
+
+
+@dataclasses.dataclass(frozen=True)
+class Stage:
+    name: str
+    steps: int
+    geometry: bool          # geometry parameters move, geometry terms count
+    appearance: bool        # appearance parameters move, appearance terms count
+
+
+@dataclasses.dataclass
+class FitSettings:
+    preset: str = "fast"
+    resolution: int = 256          # long side of the working images, pixels
+    texture_size: int = 256
+    batch_size: int = 6
+    steps: tuple = (200, 300, 200)  # geometry; geometry + appearance; appearance
+    lr_geometry: float = 1e-3       # rotations (rad) and translations (m) per Adam step
+    lr_betas: float = 1e-2          # shape units per step
+    lr_displacement: float = 1e-4   # metres per step
+    lr_appearance: float = 1e-2
+    shadows: str = "auto"          # auto | on | off
+    max_frames: int = 60           # longer clips are subsampled, keeping view coverage
+    weights: dict = dataclasses.field(default_factory=lambda: dict(WEIGHTS))
+    perceptual_weights: str | None = None   # local VGG16 file; default: weight-free pyramid
+    checkpoint_seconds: float = 120.0
+    seed: int = 0
+    seconds_per_step: tuple = (0.08, 0.25, 0.2)  # rough CPU cost per step of each stage, for the estimate
+
+    def stages(self):
+        geometry, joint, appearance = self.steps
+        return (Stage("geometry", geometry, True, False), Stage("geometry+appearance", joint, True, True),
+                Stage("appearance", appearance, False, True))
+
+    def expected_seconds(self):
+        scale = (self.batch_size / 6) * (self.resolution / 256) ** 2
+        return sum(s * c for s, c in zip(self.steps, self.seconds_per_step)) * scale
+
+
+PRESETS = {
+    "fast": dict(resolution=256, texture_size=256, batch_size=6, steps=(200, 300, 200)),
+    "balanced": dict(resolution=320, texture_size=512, batch_size=8, steps=(500, 600, 400), max_frames=90),
+    # the paper's schedule: 100 / 50 / 50 epochs over every frame, batches of ~18 frames
+    "full": dict(resolution=448, texture_size=512, batch_size=18, steps=(None, None, None), max_frames=100000),
+}
+
+
+def settings_for(preset, frame_count, **overrides):
+    """FitSettings of a preset; the full preset turns epochs into steps for this clip."""
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
+    values = dict(PRESETS[preset])
+    if preset == "full":
+        per_epoch = max(1, -(-frame_count // values["batch_size"]))
+        values["steps"] = (100 * per_epoch, 50 * per_epoch, 50 * per_epoch)
+    values.update({k: v for k, v in overrides.items() if v is not None})
+    return FitSettings(preset=preset, **values)

@@ -1,0 +1,107 @@
+"""The fit end to end on a tiny synthetic clip: outputs, checkpoint and resume, rollback."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from pipeline.fit import fitting
+from pipeline.fit.initial_from_ground_truth import ground_truth_with_noise
+from pipeline.formats import avatar_folder as av
+from pipeline.formats import hand_model_file as fmt
+from pipeline.formats import sequence_folder as seq
+from pipeline.formats.initial_estimate import write_initial_estimate
+
+pytest.importorskip("bpy")
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def tiny_clip(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("clip") / "clip"
+    result = subprocess.run([sys.executable, str(ROOT / "synth" / "render.py"), "--out", str(folder), "--frames", "4",
+                             "--width", "96", "--height", "96", "--samples", "1", "--texture-size", "128",
+                             "--motion", "flip", "--mode", "hand"], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    gt = seq.read_ground_truth(folder / seq.GT_FILE)
+    write_initial_estimate(folder, ground_truth_with_noise(gt, joint_degrees=5, translation_m=0.005, seed=0))
+    return folder
+
+
+def test_fit_writes_a_complete_avatar(tiny_clip, tmp_path):
+    out = tmp_path / "avatar"
+    report = fitting.fit(tiny_clip, out, progress="none", max_steps=4, texture_size=64, batch_size=2, resolution=96)
+    description = av.read_avatar_json(out)
+    assert description["mode"] == "hand" and len(description["betas"]) == 12
+    rig = fmt.load_hand_model(out / av.RIG_FILE)
+    vertices, faces, uvs, faces_uv = av.read_obj(out / av.MESH_FILE)
+    np.testing.assert_allclose(vertices, rig.vertices, atol=1e-6)
+    assert np.array_equal(faces, rig.faces) and np.array_equal(faces_uv, rig.faces_uv)
+    poses = av.read_poses(out)
+    assert poses["pose"].shape == (4, 16, 3) and np.all(poses["pose"][:, 0] == 0)  # hand mode: no wrist joint
+    for name in (av.ALBEDO_FILE, av.NORMAL_FILE, "fit_grid.png", "overlay.mp4", "report.json"):
+        assert (out / name).is_file(), name
+    scores = report["metrics"]
+    assert all(np.isfinite(scores["psnr"])) and 0 < scores["silhouette_iou_min"] <= 1
+    assert json.loads((out / "report.json").read_text())["stage_seconds"]["geometry"] > 0
+
+
+def test_interrupt_then_resume_reaches_the_same_result(tiny_clip, tmp_path, monkeypatch):
+    """Ctrl-C in the middle of stage two saves a checkpoint; --resume finishes the fit with the
+    same final loss as an uninterrupted run (within 1%)."""
+    import os
+    import signal
+
+    options = dict(progress="none", max_steps=6, texture_size=64, batch_size=2, resolution=96)
+    reference = fitting.fit(tiny_clip, tmp_path / "reference", **options)
+    original = fitting.batch_energy
+    calls = {"count": 0}
+
+    def interrupting(*args, **kwargs):
+        calls["count"] += 1
+        if calls["count"] == 9:            # stage two, step three
+            os.kill(os.getpid(), signal.SIGINT)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(fitting, "batch_energy", interrupting)
+    out = tmp_path / "interrupted"
+    with pytest.raises(KeyboardInterrupt):
+        fitting.fit(tiny_clip, out, **options)
+    saved = torch.load(out / fitting.CHECKPOINT_FILE, weights_only=False)
+    assert saved["state"]["stage"] == 1 and 0 < saved["state"]["step"] < 6
+    monkeypatch.setattr(fitting, "batch_energy", original)
+    resumed = fitting.fit(tiny_clip, out, resume=True, **options)
+    final = lambda report: report["final_losses"]["appearance"]["loss"]  # noqa: E731
+    assert final(resumed) == pytest.approx(final(reference), rel=0.01)
+    with pytest.raises(fitting.FitError, match="nothing to resume"):
+        fitting.fit(tiny_clip, tmp_path / "fresh", resume=True, progress="none")
+
+
+def test_non_finite_loss_rolls_back(tiny_clip, tmp_path, monkeypatch):
+    from pipeline.fit import energy
+
+    original = energy.batch_energy
+    calls = {"count": 0}
+
+    def sometimes_nan(*args, **kwargs):
+        loss, terms = original(*args, **kwargs)
+        calls["count"] += 1
+        return (loss * float("nan"), terms) if calls["count"] == 2 else (loss, terms)
+
+    monkeypatch.setattr(fitting, "batch_energy", sometimes_nan)
+    report = fitting.fit(tiny_clip, tmp_path / "avatar", progress="none", max_steps=3, texture_size=64,
+                         batch_size=2, resolution=96)
+    assert any("rolled back" in event for event in report["events"])
+    assert np.isfinite(report["metrics"]["psnr_mean"])
+
+
+def test_progress_as_json_lines(tiny_clip, tmp_path, capsys):
+    fitting.fit(tiny_clip, tmp_path / "avatar", progress="jsonl", max_steps=10, texture_size=64, batch_size=2,
+                resolution=96)
+    events = [json.loads(line) for line in capsys.readouterr().out.splitlines() if line.startswith("{")]
+    progress = [e for e in events if e["event"] == "progress"]
+    assert progress and progress[-1]["done"] == progress[-1]["total"] and "seconds_left" in progress[-1]
+    assert any(e["event"] == "log" and "expected time" in e["message"] for e in events)
