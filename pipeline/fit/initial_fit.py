@@ -47,13 +47,15 @@ class InitialFitSettings:
     pose_steps: int = 300
     restart_steps: int = 150
     smooth_steps: int = 100
-    learning_rate: float = 0.02
+    learning_rate: float = 0.02     # Adam, radians (rotations) and betas
+    translation_lr_scale: float = 0.1   # translation steps in metres: learning_rate times this
     huber_delta: float = 0.03       # robust 2D term: fraction of the hand's size in the image
     undetected_weight: float = 0.2  # weight of interpolated frames' 2D keypoints
     weight_2d: float = 1.0
     weight_3d: float = 0.1          # MediaPipe landmarks, rotated onto the estimate (squared, 10 cm units)
     weight_joint_limits: float = 1.0
     weight_pose: float = 0.03       # squared radians, keeps unseen joints near the flat hand
+    flexion_prior_scale: float = 0.1  # pose prior on flexion (local x) relative to twist/deviation
     weight_shape: float = 1e-3      # squared betas
     weight_temporal: float = 0.3    # squared frame-to-frame keypoint motion (10 cm units)
     smooth_temporal: float = 1.0    # temporal weight of the last pass
@@ -143,7 +145,8 @@ def rigid_initialisation(model, pixels, K, world=None, settings=None):
     # refine on the palm keypoints
     delta = torch.zeros(frames, 3, dtype=dtype, requires_grad=True)
     shift = torch.zeros(frames, 3, dtype=dtype, requires_grad=True)
-    optimiser = torch.optim.Adam([delta, shift], lr=settings.learning_rate)
+    optimiser = torch.optim.Adam([{"params": [delta], "lr": settings.learning_rate},
+                                  {"params": [shift], "lr": settings.learning_rate * settings.translation_lr_scale}])
     scale = _hand_size_px(pixels)
     for _ in range(settings.rigid_steps):
         optimiser.zero_grad()
@@ -174,8 +177,12 @@ class _ClipFit:
         self.betas = betas.clone().requires_grad_(True)
         self.scale = _hand_size_px(pixels)
 
-    def parameters(self, shape=True):
-        return [self.delta, self.transl, self.pose] + ([self.betas] if shape else [])
+    def parameter_groups(self, shape=True):
+        """Adam groups: rotations in radians, translation in metres, shape in betas."""
+        lr = self.settings.learning_rate
+        groups = [{"params": [self.delta, self.pose], "lr": lr},
+                  {"params": [self.transl], "lr": lr * self.settings.translation_lr_scale}]
+        return groups + ([{"params": [self.betas], "lr": lr}] if shape else [])
 
     def full_pose(self):
         return torch.cat([torch.zeros_like(self.pose[:, :1]), self.pose], dim=1)
@@ -209,7 +216,8 @@ class _ClipFit:
                 target = target @ kabsch(target, relative).transpose(1, 2)
             per_frame = per_frame + s.weight_3d * self.weights * (relative - target).square().sum(-1).mean(-1)
         per_frame = per_frame + s.weight_joint_limits * joint_limit_penalty(self.full_pose(), self.model.joint_limits)
-        per_frame = per_frame + s.weight_pose * self.pose.square().sum((-1, -2))
+        axes = torch.tensor([s.flexion_prior_scale, 1.0, 1.0], dtype=self.pose.dtype)
+        per_frame = per_frame + s.weight_pose * (axes * self.pose.square()).sum((-1, -2))
         per_frame = per_frame + 10.0 * torch.relu(0.05 - points[..., 2]).sum(-1)  # stay in front of the camera
         shared = s.weight_shape * self.betas.square().sum()
         if temporal_weight > 0 and self.frame_index is not None:
@@ -223,7 +231,7 @@ class _ClipFit:
         return per_frame, shared
 
     def optimise(self, steps, temporal_weight, shape=True):
-        optimiser = torch.optim.Adam(self.parameters(shape), lr=self.settings.learning_rate)
+        optimiser = torch.optim.Adam(self.parameter_groups(shape))
         for _ in range(steps):
             optimiser.zero_grad()
             per_frame, shared = self.energy(temporal_weight)
