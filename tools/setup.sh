@@ -30,4 +30,4 @@ done
 if [ -n "$removed" ]; then
     .venv/bin/python -m pip install --quiet --force-reinstall --no-deps opencv-contrib-python-headless==4.11.0.86
 fi
-.venv/bin/python -c "import cv2, torch, numpy, mediapipe; from mediapipe.python.solutions import hands; print('environment ready: torch', torch.__version__, 'numpy', numpy.__version__, 'opencv', cv2.__version__, 'mediapipe', mediapipe.__version__)"
+.venv/bin/python -c "import cv2, torch, numpy, mediapipe; from mediapipe.python.solutions import hands; hands.Hands(static_image_mode=True).process(numpy.zeros((64, 64, 3), numpy.uint8)); print('environment ready: torch', torch.__version__, 'numpy', numpy.__version__, 'opencv', cv2.__version__, 'mediapipe', mediapipe.__version__)"
