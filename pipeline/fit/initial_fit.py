@@ -10,13 +10,15 @@ estimator gives 2D keypoints (MediaPipe or a file) and, from MediaPipe, metric 3
    equations (depth from the hand's size and K), and the rotation with the smallest 2D residual
    is refined by Adam;
 2. pose and shape: per-frame rotation, translation and finger joint rotations and one shape for
-   the clip, by Adam over all frames at once: robust 2D reprojection, root-relative 3D keypoints
-   against MediaPipe's landmarks, joint-limit prior, small pose and shape priors, temporal
-   smoothness. Each frame is fitted twice side by side, from the rigid result and from it with
-   the palm turned over (the 2D palm is nearly planar, so both can fit it), and the better kept;
-3. restart: a frame whose residual stays high is fitted again from its best neighbour's pose
-   and from its palm flip, and the better result kept;
-4. smoothing: a last pass over all frames with a stronger temporal term.
+   the clip, by Adam over all frames at once: robust 2D reprojection, MediaPipe's metric
+   landmarks rotated onto the estimate (their articulation, not their orientation), joint-limit
+   prior, small pose and shape priors. Each frame is fitted twice side by side, from the rigid
+   result and from it with the palm turned over (the 2D palm is nearly planar, so both can fit
+   it), and the better kept;
+3. a pass over the clip with a temporal smoothness term; a frame whose residual stays high is
+   fitted again from its nearest better neighbour's pose and from its palm flip, the better
+   result kept;
+4. smoothing: the same with a stronger temporal term (and another restart check).
 
 Poses are HandModel's (local axis-angles; global_orient about the wrist; transl the wrist's
 position in the camera frame, metres). The wrist joint (pose[:, 0]) stays 0: keypoints do not
