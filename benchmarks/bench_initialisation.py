@@ -73,14 +73,12 @@ def main():
         start = time.perf_counter()
         oracle = fit_initial_estimate(exact, info.K, mode=gt.mode, side=info.hand_side)
         oracle_s = time.perf_counter() - start
-        flat = estimate.keypoints3d.copy()
         flat_pa = pa_mm(type(estimate)(**{**estimate.__dict__, "keypoints3d": _flat_hand(gt)}), gt).mean()
         summary = keypoints.summary()
         pa = pa_mm(estimate, gt)
         print(f"{clip.name:<14}{info.width:>5}{summary['detection_rate']:>7.2f}{summary['handedness_agreement']:>8.2f}"
               f"{error_2d.mean():>9.2f}{np.median(error_2d):>8.2f}{pa.mean():>7.1f}{np.median(pa):>7.1f}"
               f"{init_s:>7.1f}{pa_mm(oracle, gt).mean():>8.1f}{oracle_s:>7.1f}{flat_pa:>8.1f}")
-        del flat
     print("det.: detection rate; hand ok: handedness label agreement on detected frames; 2D: MediaPipe keypoint\n"
           "error (px, detected frames); PA: Procrustes-aligned 3D keypoint error of the initial fit (mm, all\n"
           "frames); init s: detection + fit wall time; gt2D: the fit from exact 2D keypoints; flat PA: the\n"
