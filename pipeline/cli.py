@@ -35,6 +35,25 @@ def _fit(args):
           f"PSNR in the mask {scores['psnr_mean']:.1f} dB, {report['total_seconds']:.0f} s")
 
 
+def _import_video(args):
+    from .sequence_import import import_video, parse_intrinsics
+
+    import_video(args.video, args.masks, args.out, size=args.size, K=parse_intrinsics(args.K) if args.K else None,
+                 fov_deg=args.fov, side=args.side, fps=args.fps, margin=args.margin, max_frames=args.max_frames,
+                 overwrite=args.overwrite, warn=lambda message: print(message, file=sys.stderr))
+
+
+def _init(args):
+    from .fit.initialisation import initialise_sequence
+
+    method, *rest = args.init
+    if len(rest) > 1:
+        raise ValueError(f"--init takes a method and at most one FILE, got {' '.join(args.init)}")
+    initialise_sequence(args.sequence, method, rest[0] if rest else None, mode=args.mode, seed=args.seed,
+                        noise_degrees=args.noise_degrees, noise_translation_m=args.noise_translation,
+                        warn=lambda message: print(message, file=sys.stderr))
+
+
 def _demo(args):
     """The quick-start job: build the hand model from scratch and picture it."""
     out = Path(args.out)
@@ -75,6 +94,32 @@ def build_parser():
     info = model_commands.add_parser("info", help="print the model's measured anatomy")
     info.add_argument("--model", default=None, help="folder of model files (default: shipped)")
     info.set_defaults(run=_model_info)
+
+    video = commands.add_parser("import-video", help="a sequence folder from a video (or images) and its masks")
+    video.add_argument("video", help="video file or folder of images")
+    video.add_argument("--masks", required=True, help="mask video or folder of mask images (white = hand)")
+    video.add_argument("--out", required=True, help="sequence folder to write")
+    video.add_argument("--size", type=int, default=448, help="square output size in pixels (default 448)")
+    camera = video.add_mutually_exclusive_group()
+    camera.add_argument("--K", default=None, metavar="FX,FY,CX,CY", help="intrinsics of the video, pixels")
+    camera.add_argument("--fov", type=float, default=None, metavar="DEG", help="horizontal field of view")
+    video.add_argument("--side", choices=("right", "left", "auto"), default="auto",
+                       help="hand side (default: auto, from MediaPipe's handedness)")
+    video.add_argument("--fps", type=float, default=None, help="frame rate (default: the video's, or 30)")
+    video.add_argument("--margin", type=float, default=0.15, help="crop margin, fraction of the hand box")
+    video.add_argument("--max-frames", type=int, default=None, help="import only the first N frames")
+    video.add_argument("--overwrite", action="store_true", help="replace the sequence in --out")
+    video.set_defaults(run=_import_video)
+
+    init = commands.add_parser("init", help="initial pose and shape of a sequence (writes init.npz)")
+    init.add_argument("sequence", help="sequence folder")
+    init.add_argument("--init", nargs="+", default=["mediapipe"], metavar="METHOD [FILE]",
+                      help="mediapipe (default), keypoints FILE (.npy/.npz/.json, pixels), or gt-noise")
+    init.add_argument("--mode", choices=("hand", "arm", "auto"), default="auto", help="template (default: from masks)")
+    init.add_argument("--noise-degrees", type=float, default=10.0, help="gt-noise: rotation of every joint")
+    init.add_argument("--noise-translation", type=float, default=0.01, help="gt-noise: wrist shift, metres")
+    init.add_argument("--seed", type=int, default=0, help="gt-noise: random seed")
+    init.set_defaults(run=_init)
     return parser
 
 

@@ -17,9 +17,17 @@ if [ "${1:-}" = "--test" ]; then
     extras="[test,blender]"
 fi
 .venv/bin/python -m pip install --quiet -e ".${extras}"
-# one working OpenCV: drop any non-headless build another package may have pulled in
-if .venv/bin/python -m pip show opencv-python >/dev/null 2>&1; then
-    .venv/bin/python -m pip uninstall --quiet -y opencv-python
+# one working OpenCV: mediapipe pulls in the non-headless opencv-contrib-python (and other
+# packages may pull opencv-python); both share the cv2 module with the headless build, so drop
+# them and reinstall the headless build over whatever they left behind
+removed=""
+for package in opencv-python opencv-contrib-python; do
+    if .venv/bin/python -m pip show "$package" >/dev/null 2>&1; then
+        .venv/bin/python -m pip uninstall --quiet -y "$package"
+        removed=yes
+    fi
+done
+if [ -n "$removed" ]; then
     .venv/bin/python -m pip install --quiet --force-reinstall --no-deps opencv-contrib-python-headless==4.11.0.86
 fi
-.venv/bin/python -c "import cv2, torch, numpy; print('environment ready: torch', torch.__version__, 'numpy', numpy.__version__, 'opencv', cv2.__version__)"
+.venv/bin/python -c "import cv2, torch, numpy, mediapipe; from mediapipe.python.solutions import hands; hands.Hands(static_image_mode=True).process(numpy.zeros((64, 64, 3), numpy.uint8)); print('environment ready: torch', torch.__version__, 'numpy', numpy.__version__, 'opencv', cv2.__version__, 'mediapipe', mediapipe.__version__)"

@@ -1,0 +1,324 @@
+"""`harp import-video`: a sequence folder from a video (or image folder) and its masks.
+
+Frames and masks are each a video file (anything OpenCV's VideoCapture decodes) or a folder of
+images (.png, .jpg, .jpeg, .bmp, .tif, .tiff, .webp; taken in natural name order, so 2.png
+comes before 10.png). They are paired by order. Masks are binarised at half intensity (the
+brightest channel >= 128 is hand), so lossy mask videos work.
+
+One square window is cut for the whole clip: the union of the masks' bounding boxes, grown by
+`margin` (a fraction of the box's longer side) on every side, made square about its centre,
+shifted to stay inside the frame where it fits, and padded otherwise (edge pixels for the
+frames, background for the masks); then resized to `size` x `size`. The intrinsics follow
+exactly (pixel-corner convention of pipeline/formats/camera.py): cropping at (x0, y0) moves
+the principal point by (-x0, -y0); resizing by s scales fx, fy, cx, cy by s.
+
+Intrinsics of the original frames: `K` (fx, fy, cx, cy in pixels), or a horizontal field of
+view, or by default DEFAULT_FOV_DEG across the frame's longer side: phone main cameras have
+a 24 - 26 mm (35 mm equivalent) lens, and 26 mm over the 34.6 mm long side of a 4:3 frame
+(diagonal 43.3 mm) gives 2 atan(17.3 / 26) = 67 degrees; 16:9 video keeps the sensor's width.
+
+Frames whose mask is empty (fewer than MIN_MASK_PIXELS hand pixels: the hand left the view or
+the segmenter missed it) are left out, reported in one warning line and recorded in
+sequence.json (`metadata.source_frames`, `metadata.dropped_frames`); every other problem stops
+the import with one ImportVideoError line before anything is written.
+"""
+from __future__ import annotations
+
+import math
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from .formats import sequence_folder as seq
+from .formats.camera import intrinsics_from_fov
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+DEFAULT_FOV_DEG = 67.0          # across the longer side of the original frame (phone main camera)
+DEFAULT_FPS = 30.0              # for image folders
+MIN_MASK_PIXELS = 16            # fewer hand pixels than this: an empty mask frame
+MIN_FRAMES = 2                  # the fit needs more than one view
+MASK_THRESHOLD = 128
+
+
+class ImportVideoError(ValueError):
+    """The video, images or masks cannot be imported (one-line message)."""
+
+
+# --- sources ----------------------------------------------------------------------------------
+def _natural_key(path):
+    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", path.name)]
+
+
+class FrameSource:
+    """Frames of a video file or an image folder, in order: `for index, image in source`.
+
+    Images are (H, W, 3) uint8 RGB (`grey=False`) or (H, W) uint8 (`grey=True`, the brightest
+    channel of a colour image)."""
+
+    def __init__(self, path, label, grey=False, limit=None):
+        self.path, self.label, self.grey, self.limit = Path(path), label, grey, limit
+        if not self.path.exists():
+            raise ImportVideoError(f"{label} not found: {self.path}")
+        if self.path.is_dir():
+            self.files = sorted((p for p in self.path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES),
+                                key=_natural_key)
+            if not self.files:
+                raise ImportVideoError(f"{label} folder {self.path} holds no images ({', '.join(IMAGE_SUFFIXES)})")
+        else:
+            self.files = None
+            self._open_video().release()
+
+    @property
+    def fps(self):
+        """Frame rate stored in a video file (None for image folders or when unknown)."""
+        if self.files is not None:
+            return None
+        import cv2
+
+        capture = self._open_video()
+        fps = capture.get(cv2.CAP_PROP_FPS)
+        capture.release()
+        return float(fps) if fps and math.isfinite(fps) and 0 < fps < 1000 else None
+
+    def _open_video(self):
+        import cv2
+
+        capture = cv2.VideoCapture(str(self.path))
+        if not capture.isOpened():
+            raise ImportVideoError(f"cannot read {self.label} {self.path}: not a video OpenCV can decode "
+                                   "(or a folder of images)")
+        return capture
+
+    def __iter__(self):
+        import cv2
+
+        if self.files is not None:
+            for index, file in enumerate(self.files[:self.limit]):
+                image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
+                if image is None:
+                    raise ImportVideoError(f"cannot read {self.label} image {file}")
+                yield index, self._convert(image)
+            return
+        capture = self._open_video()
+        index = 0
+        try:
+            while self.limit is None or index < self.limit:
+                ok, image = capture.read()
+                if not ok:
+                    break
+                yield index, self._convert(image)
+                index += 1
+        finally:
+            capture.release()
+        if index == 0:
+            raise ImportVideoError(f"cannot read {self.label} {self.path}: no frame could be decoded")
+
+    def _convert(self, image):
+        import cv2
+
+        if image.dtype == np.uint16:
+            image = (image >> 8).astype(np.uint8)
+        if image.ndim == 3 and image.shape[2] == 4:
+            image = image[..., :3]
+        if self.grey:
+            return image.max(axis=2) if image.ndim == 3 else image
+        if image.ndim == 2:
+            image = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+        return np.ascontiguousarray(image[..., ::-1])
+
+
+# --- crop and intrinsics ----------------------------------------------------------------------
+def parse_intrinsics(text):
+    """"fx,fy,cx,cy" -> K (3, 3)."""
+    try:
+        fx, fy, cx, cy = (float(value) for value in str(text).split(","))
+    except ValueError:
+        raise ImportVideoError(f"--K needs four numbers fx,fy,cx,cy in pixels, got {text!r}") from None
+    if not (fx > 0 and fy > 0 and all(math.isfinite(v) for v in (cx, cy))):
+        raise ImportVideoError(f"--K needs positive focal lengths, got {text!r}")
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
+def source_intrinsics(width, height, K=None, fov_deg=None):
+    """K (3, 3) of the original frames: given, from a horizontal field of view, or the default
+    phone camera (DEFAULT_FOV_DEG across the longer side). Returns (K, description)."""
+    if K is not None and fov_deg is not None:
+        raise ImportVideoError("give either --K or --fov, not both")
+    if K is not None:
+        return np.asarray(K, dtype=np.float64), "given K"
+    if fov_deg is not None:
+        if not 1.0 <= fov_deg <= 170.0:
+            raise ImportVideoError(f"--fov must be between 1 and 170 degrees, got {fov_deg}")
+        return intrinsics_from_fov(width, height, fov_deg), f"horizontal field of view {fov_deg:g} degrees"
+    K = intrinsics_from_fov(max(width, height), max(width, height), DEFAULT_FOV_DEG)
+    K[0, 2], K[1, 2] = width / 2.0, height / 2.0
+    return K, f"default phone camera: {DEFAULT_FOV_DEG:g} degrees across the longer side"
+
+
+def crop_window(box, width, height, margin):
+    """Square window (x0, y0, side) in pixels around box (x_min, y_min, x_max, y_max) (pixel
+    edges), grown by `margin` times the box's longer side on each side, inside the image
+    where it fits (it may extend past the image when it is larger than the image)."""
+    x_min, y_min, x_max, y_max = box
+    side = int(math.ceil(max(x_max - x_min, y_max - y_min) * (1 + 2 * margin)))
+    side = max(side, 1)
+    x0 = int(round((x_min + x_max - side) / 2))
+    y0 = int(round((y_min + y_max - side) / 2))
+    if side <= width:
+        x0 = min(max(x0, 0), width - side)
+    if side <= height:
+        y0 = min(max(y0, 0), height - side)
+    return x0, y0, side
+
+
+def crop_intrinsics(K, x0, y0, side, size):
+    """K after cropping the square window (x0, y0, side) and resizing it to size x size."""
+    scale = size / side
+    K = np.array(K, dtype=np.float64)
+    K[0, 2] -= x0
+    K[1, 2] -= y0
+    K[:2] *= scale
+    return K
+
+
+def crop_and_resize(image, x0, y0, side, size, mask=False):
+    """Cut the square window out of an image (padding past its edges: replicated edge pixels,
+    or 0 for masks) and resize to size x size (area averaging; masks re-binarised)."""
+    import cv2
+
+    height, width = image.shape[:2]
+    pad = max(0, -x0, -y0, x0 + side - width, y0 + side - height)
+    if pad:
+        border = cv2.BORDER_CONSTANT if mask else cv2.BORDER_REPLICATE
+        image = cv2.copyMakeBorder(image, pad, pad, pad, pad, border, value=0)
+        x0, y0 = x0 + pad, y0 + pad
+    window = image[y0:y0 + side, x0:x0 + side]
+    interpolation = cv2.INTER_AREA if side >= size else cv2.INTER_LINEAR
+    resized = cv2.resize(window, (size, size), interpolation=interpolation)
+    if mask:
+        return np.where(resized >= MASK_THRESHOLD, 255, 0).astype(np.uint8)
+    return resized
+
+
+# --- the import -------------------------------------------------------------------------------
+def _scan(frames, masks, max_frames):
+    """Check frames against masks (count, size, content); return (size, boxes, empty) where boxes
+    maps a kept frame index to its mask's bounding box."""
+    frame_iter, mask_iter = iter(frames), iter(masks)
+    size, boxes, empty, count = None, {}, [], 0
+    while max_frames is None or count < max_frames:
+        frame = next(frame_iter, None)
+        mask = next(mask_iter, None)
+        if frame is None and mask is None:
+            break
+        if frame is None or mask is None:
+            frame_count = count + (frame is not None) + sum(1 for _ in frame_iter)
+            mask_count = count + (mask is not None) + sum(1 for _ in mask_iter)
+            raise ImportVideoError(f"frame/mask count mismatch: {frame_count} frames, {mask_count} masks")
+        index, image = frame
+        _, mask_image = mask
+        frame_size = (image.shape[1], image.shape[0])
+        size = size or frame_size
+        if frame_size != size:
+            raise ImportVideoError(f"frame {index} is {frame_size[0]}x{frame_size[1]}, frame 0 is {size[0]}x{size[1]}")
+        if (mask_image.shape[1], mask_image.shape[0]) != size:
+            raise ImportVideoError(f"mask {index} is {mask_image.shape[1]}x{mask_image.shape[0]}, "
+                                   f"frame {index} is {size[0]}x{size[1]}")
+        hand = mask_image >= MASK_THRESHOLD
+        pixels = int(hand.sum())
+        if pixels == hand.size:
+            raise ImportVideoError(f"mask {index} is all foreground (every pixel is hand); masks must be "
+                                   "white (>= 128) on the hand and black elsewhere - inverted?")
+        if pixels < MIN_MASK_PIXELS:
+            empty.append(index)
+        else:
+            rows, cols = np.nonzero(hand)
+            boxes[index] = (cols.min(), rows.min(), cols.max() + 1, rows.max() + 1)
+        count += 1
+    return size, boxes, empty, count
+
+
+def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto", fps=None, margin=0.15,
+                 max_frames=None, overwrite=False, log=print, warn=None):
+    """Write the sequence folder `out` from `video` and `masks` (files or image folders);
+    returns its SequenceInfo. See the module docstring for what is done and checked."""
+    warn = warn or log
+    if size < 32:
+        raise ImportVideoError(f"--size must be at least 32 pixels, got {size}")
+    if not 0 <= margin <= 2:
+        raise ImportVideoError(f"--margin must be between 0 and 2, got {margin}")
+    if max_frames is not None and max_frames < MIN_FRAMES:
+        raise ImportVideoError(f"--max-frames must be at least {MIN_FRAMES}, got {max_frames}")
+    if fps is not None and not fps > 0:
+        raise ImportVideoError(f"--fps must be positive, got {fps}")
+    if side not in ("right", "left", "auto"):
+        raise ImportVideoError(f"--side must be right, left or auto, got {side!r}")
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ImportVideoError(f"output {out} exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not overwrite:
+        raise ImportVideoError(f"output folder {out} is not empty (use --overwrite to replace its sequence)")
+    frames = FrameSource(video, "video", limit=max_frames)
+    mask_source = FrameSource(masks, "masks", grey=True, limit=max_frames)
+    (width, height), boxes, empty, count = _scan(frames, mask_source, max_frames)
+    if not boxes:
+        raise ImportVideoError(f"every mask is empty (fewer than {MIN_MASK_PIXELS} hand pixels in each of {count} frames)")
+    if len(boxes) < MIN_FRAMES:
+        raise ImportVideoError(f"not enough frames: {len(boxes)} with a hand in the mask, need at least {MIN_FRAMES}")
+    if empty:
+        warn(f"warning: left out {len(empty)} frame(s) with an empty mask: {frame_ranges(empty)}")
+    K_source, camera_note = source_intrinsics(width, height, K, fov_deg)
+    stacked = np.array(list(boxes.values()))
+    union = (stacked[:, 0].min(), stacked[:, 1].min(), stacked[:, 2].max(), stacked[:, 3].max())
+    x0, y0, side_px = crop_window(union, width, height, margin)
+    K_out = crop_intrinsics(K_source, x0, y0, side_px, size)
+
+    if overwrite and out.is_dir():
+        for name in ("rgb", "mask"):
+            shutil.rmtree(out / name, ignore_errors=True)
+        for name in (seq.SEQUENCE_FILE, "init.npz"):
+            (out / name).unlink(missing_ok=True)
+    info = seq.SequenceInfo(fps=fps or frames.fps or DEFAULT_FPS, width=size, height=size, frame_count=len(boxes),
+                            hand_side="right", K=K_out)
+    kept = sorted(boxes)
+    written = 0
+    for (index, image), (_, mask_image) in zip(frames, mask_source):
+        if index not in boxes:
+            continue
+        seq.write_png(seq.frame_path(out, info, written), crop_and_resize(image, x0, y0, side_px, size))
+        seq.write_png(seq.mask_path(out, info, written), crop_and_resize(mask_image, x0, y0, side_px, size, mask=True))
+        written += 1
+    if written != len(kept):
+        raise ImportVideoError(f"the {frames.label} gave {written} frames on the second read, {len(kept)} on the first")
+    if side == "auto":
+        from .fit.keypoint_detection import guess_hand_side
+
+        sample = np.unique(np.linspace(0, written - 1, min(written, 10)).round().astype(int))
+        side, votes = guess_hand_side(seq.read_rgb(seq.frame_path(out, info, i)) for i in sample)
+        log(f"hand side: {side} (MediaPipe votes right {votes['right']}, left {votes['left']} "
+            f"in {len(sample)} frames; --side overrides)")
+    info.hand_side = side
+    info.metadata = {
+        "generator": "harp import-video", "video": str(video), "masks": str(masks),
+        "source_size": [width, height], "source_K": K_source.tolist(), "camera": camera_note,
+        "crop": {"x0": x0, "y0": y0, "side": side_px, "margin": margin},
+        "source_frames": kept, "dropped_frames": {"empty_mask": empty},
+    }
+    seq.write_sequence_info(out, info)
+    log(f"wrote {written} frames ({size}x{size}, crop {side_px} px at ({x0}, {y0}) of {width}x{height}; "
+        f"{camera_note}) to {out}")
+    return info
+
+
+def frame_ranges(indices):
+    """"1-3, 7" for [1, 2, 3, 7]."""
+    parts, start = [], None
+    for i, value in enumerate(indices):
+        if start is None:
+            start = value
+        if i + 1 == len(indices) or indices[i + 1] != value + 1:
+            parts.append(str(start) if start == value else f"{start}-{value}")
+            start = None
+    return ", ".join(parts)
