@@ -170,8 +170,8 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
                 state["step"] += 1
                 if state["step"] % ROLLBACK_EVERY == 0:
                     last_good = _snapshot(avatar, optimiser)
-                state["history"].append({"stage": stage.name, "step": state["step"], "loss": float(loss), **terms})
-                reporter.update(stage.name, state["step"], float(loss))
+                state["history"].append({"stage": stage.name, "step": state["step"], "loss": loss.item(), **terms})
+                reporter.update(stage.name, state["step"], loss.item())
                 if stage.name == "geometry+appearance" and not state["shadows"]["decided"] \
                         and state["step"] >= stage.steps // 2:
                     _decide_shadows(avatar, state, reporter)
