@@ -157,7 +157,7 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
                 if torch.isfinite(loss):
                     loss.backward()
                     _mask_frozen_gradients(avatar)
-                    optimiser.step()
+                    _lazy_step(avatar, optimiser, batch)
                 if not torch.isfinite(loss) or not _finite(avatar):
                     _restore(avatar, optimiser, last_good)
                     for group in optimiser.param_groups:
@@ -201,6 +201,27 @@ def _optimiser(avatar, stage, settings):
     if stage.appearance:
         groups.append({"params": avatar.parameter_group(APPEARANCE), "lr": settings.lr_appearance})
     return torch.optim.Adam(groups)
+
+
+PER_FRAME = ("global_orient", "transl", "pose")
+
+
+def _lazy_step(avatar, optimiser, batch):
+    """Adam step that leaves the per-frame parameters of frames outside the batch untouched,
+    values and moments alike (otherwise stale momentum keeps moving them: a "lazy" Adam)."""
+    outside = torch.ones(avatar.pose.shape[0], dtype=torch.bool, device=batch.device)
+    outside[batch] = False
+    saved = []
+    for name in PER_FRAME:
+        parameter = getattr(avatar, name)
+        moments = optimiser.state.get(parameter, {})
+        saved.append((parameter, parameter.data[outside].clone(),
+                      {k: v[outside].clone() for k, v in moments.items() if torch.is_tensor(v) and v.dim() > 0}))
+    optimiser.step()
+    for parameter, values, moments in saved:
+        parameter.data[outside] = values
+        for key, value in moments.items():
+            optimiser.state[parameter][key][outside] = value
 
 
 def _mask_frozen_gradients(avatar):
