@@ -28,7 +28,7 @@ class Avatar(torch.nn.Module):
         dtype, device = model.v_template.dtype, model.v_template.device
 
         def parameter(array):
-            return torch.nn.Parameter(torch.as_tensor(np.asarray(array), dtype=dtype, device=device).clone())
+            return torch.nn.Parameter(torch.as_tensor(np.array(array), dtype=dtype, device=device))
 
         self.global_orient = parameter(initial.global_orient[frames])
         self.transl = parameter(initial.transl[frames])

@@ -247,7 +247,7 @@ def _restore(avatar, optimiser, snapshot):
 
 def _decide_shadows(avatar, state, reporter):
     """Self-shadowing pays off under a dominant light: decide from the fitted ambient ratio."""
-    ambient = float(avatar.ambient)
+    ambient = avatar.ambient.item()
     on = ambient < SHADOW_AMBIENT_THRESHOLD
     state["shadows"].update(auto=True, decided=True, on=on, ambient_at_decision=ambient)
     reporter.log(f"shadows auto: fitted ambient ratio {ambient:.2f} -> self-shadowing {'on' if on else 'off'}")

@@ -69,7 +69,7 @@ def write_outputs(out, sequence, avatar, clip, settings, state, initial, percept
         "stage_seconds": dict(zip(["geometry", "geometry+appearance", "appearance"], state["stage_seconds"])),
         "total_seconds": float(sum(state["stage_seconds"])), "output_seconds": time.time() - start,
         "final_losses": last, "metrics": scores, "shadows": state["shadows"], "events": state["events"],
-        "perceptual_term": perceptual_name, "ambient": float(avatar.ambient),
+        "perceptual_term": perceptual_name, "ambient": avatar.ambient.item(),
         "light_position": avatar.light_position.detach().cpu().tolist(),
     }
     (out / REPORT_FILE).write_text(__import__("json").dumps(report, indent=2))
@@ -94,7 +94,7 @@ def _write_avatar(out, avatar, clip, settings, state, initial, perceptual_name, 
                    (avatar.pose * avatar.pose_mask).detach().cpu().numpy(), clip.frames)
     av.write_avatar_json(out, {
         "mode": model_data.mode, "side": model_data.side, "betas": betas.tolist(),
-        "light": {"position": avatar.light_position.detach().cpu().tolist(), "ambient": float(avatar.ambient),
+        "light": {"position": avatar.light_position.detach().cpu().tolist(), "ambient": avatar.ambient.item(),
                   "shadows": shadows},
         "camera": {"K": clip.K.cpu().tolist(), "width": clip.width, "height": clip.height},
         "settings": {k: v for k, v in vars(settings).items() if k != "weights"} | {"weights": settings.weights},
