@@ -54,6 +54,16 @@ def _init(args):
                         warn=lambda message: print(message, file=sys.stderr))
 
 
+def _render(args):
+    from .avatar_render import render_avatar
+
+    light = [float(x) for x in args.light.split(",")] if args.light else None
+    if light is not None and len(light) != 3:
+        raise ValueError("--light takes x,y,z in metres (camera frame)")
+    shadows = None if args.shadows == "fitted" else args.shadows == "on"
+    print(f"wrote {render_avatar(args.avatar, args.out, args.pose, args.frame, args.azimuth, args.elevation, light, args.size, shadows)}")
+
+
 def _demo(args):
     """The quick-start job: build the hand model from scratch and picture it."""
     out = Path(args.out)
@@ -79,6 +89,18 @@ def build_parser():
     fit.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar")
     fit.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
     fit.set_defaults(run=_fit)
+
+    render = commands.add_parser("render", help="render an avatar in a new pose, view and light")
+    render.add_argument("avatar", help="avatar folder written by harp fit")
+    render.add_argument("--out", default="avatar.png")
+    render.add_argument("--pose", default="rest", help="a named pose: rest, fist, spread, thumbs_up, pinch, point")
+    render.add_argument("--frame", type=int, default=None, help="use the fitted pose of this frame instead")
+    render.add_argument("--azimuth", type=float, default=0.0, help="degrees about the vertical axis")
+    render.add_argument("--elevation", type=float, default=0.0, help="degrees of tilt")
+    render.add_argument("--light", default=None, help="x,y,z of the point light in the camera frame (m)")
+    render.add_argument("--shadows", choices=("fitted", "on", "off"), default="fitted")
+    render.add_argument("--size", type=int, default=512)
+    render.set_defaults(run=_render)
 
     model = commands.add_parser("model", help="the parametric hand model")
     model_commands = model.add_subparsers(dest="model_command", required=True)

@@ -105,3 +105,24 @@ def test_progress_as_json_lines(tiny_clip, tmp_path, capsys):
     progress = [e for e in events if e["event"] == "progress"]
     assert progress and progress[-1]["done"] == progress[-1]["total"] and "seconds_left" in progress[-1]
     assert any(e["event"] == "log" and "expected time" in e["message"] for e in events)
+
+
+def test_render_the_avatar_in_new_poses_views_and_lights(tiny_clip, tmp_path):
+    import cv2
+
+    from pipeline.cli import main
+
+    out = tmp_path / "avatar"
+    fitting.fit(tiny_clip, out, progress="none", max_steps=2, texture_size=64, batch_size=2, resolution=96)
+    pictures = {}
+    for name, arguments in {"rest": [], "fist": ["--pose", "fist"], "turned": ["--azimuth", "90"],
+                            "frame": ["--frame", "1"], "lit": ["--light", "0,-0.5,0", "--shadows", "on"]}.items():
+        path = tmp_path / f"{name}.png"
+        assert main(["render", str(out), "--out", str(path), "--size", "96", *arguments]) == 0
+        pictures[name] = cv2.imread(str(path)).astype(float)
+        covered = (np.abs(pictures[name] - pictures[name][0, 0]).sum(-1) > 10).mean()
+        assert 0.05 < covered < 0.9, name          # the hand is in the picture, framed
+    assert np.abs(pictures["rest"] - pictures["fist"]).mean() > 2
+    assert np.abs(pictures["rest"] - pictures["turned"]).mean() > 2
+    assert main(["render", str(out), "--frame", "99", "--out", str(tmp_path / "x.png")]) == 1
+    assert main(["render", str(tmp_path / "nothing"), "--out", str(tmp_path / "x.png")]) == 1

@@ -1,0 +1,82 @@
+"""`harp render AVATAR`: the fitted avatar in new poses, views and lights (a PNG)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from .formats import avatar_folder as av
+from .formats import hand_model_file as fmt
+from .handmodel.lbs import HandModel
+from .handmodel.poses import NAMED_POSES
+from .handmodel.rotations import axis_angle_to_matrix, matrix_to_axis_angle
+from .render.renderer import Appearance, Light, RenderMesh, render
+
+
+def load_avatar(folder, device=None):
+    """(HandModel of the personalised rig, Appearance, description dict) of an avatar folder."""
+    folder = Path(folder)
+    description = av.read_avatar_json(folder)
+    rig = fmt.load_hand_model(folder / av.RIG_FILE)
+    albedo = cv2.imread(str(folder / av.ALBEDO_FILE), cv2.IMREAD_COLOR)
+    normal = cv2.imread(str(folder / av.NORMAL_FILE), cv2.IMREAD_COLOR)
+    if albedo is None or normal is None:
+        raise av.AvatarFolderError(f"{folder} lacks a readable {av.ALBEDO_FILE} or {av.NORMAL_FILE}")
+    albedo = torch.as_tensor(albedo[:, :, ::-1] / 255.0, dtype=torch.float32, device=device).permute(2, 0, 1)
+    normal = torch.as_tensor(av.decode_normal_map(normal[:, :, ::-1]), dtype=torch.float32, device=device).permute(2, 0, 1)
+    return HandModel(rig, device=device), Appearance(albedo.contiguous(), normal.contiguous()), description
+
+
+def view_orientation(azimuth_deg, elevation_deg):
+    """Global orientation showing the palm to the camera (fingers up), turned about the image's
+    vertical axis by the azimuth and tilted by the elevation."""
+    facing = torch.tensor([np.pi, 0.0, 0.0], dtype=torch.float32)
+    turn = torch.tensor([0.0, np.radians(azimuth_deg), 0.0], dtype=torch.float32)
+    tilt = torch.tensor([np.radians(elevation_deg), 0.0, 0.0], dtype=torch.float32)
+    matrix = axis_angle_to_matrix(tilt) @ axis_angle_to_matrix(turn) @ axis_angle_to_matrix(facing)
+    return matrix_to_axis_angle(matrix)
+
+
+def render_avatar(folder, out, pose="rest", frame=None, azimuth=0.0, elevation=0.0, light=None, size=512,
+                  shadows=None, background=(0.2, 0.2, 0.2)):
+    """Render the avatar to `out` (PNG): a named pose (or the fitted pose of `frame`), seen from
+    azimuth/elevation (degrees), lit by its fitted light or `light` (camera frame, metres)."""
+    model, appearance, description = load_avatar(folder)
+    if frame is not None:
+        poses = av.read_poses(folder)
+        if not 0 <= frame < len(poses["frames"]):
+            raise av.AvatarFolderError(f"frame {frame} is not in the avatar (it has {len(poses['frames'])})")
+        joint_pose = torch.as_tensor(poses["pose"][frame], dtype=torch.float32)
+    else:
+        if pose not in NAMED_POSES:
+            raise ValueError(f"unknown pose {pose!r}; choose one of {sorted(NAMED_POSES)}")
+        joint_pose = torch.as_tensor(NAMED_POSES[pose], dtype=torch.float32)
+        if model.side == "left":
+            from .handmodel.mirror import mirror_axis_angle
+            joint_pose = mirror_axis_angle(joint_pose)
+    orient = view_orientation(azimuth, elevation)[None]
+    with torch.no_grad():
+        rest = model(pose=joint_pose[None], global_orient=orient).vertices
+        hand = rest[:, torch.as_tensor(model.data.vertex_parts != fmt.PART_NAMES.index("forearm"))]
+        centre = 0.5 * (hand.amin(1) + hand.amax(1))          # frame the hand; a forearm may leave the picture
+        extent = (hand.amax(1) - hand.amin(1))[0, :2].max().item()
+        focal = 2.0 * size
+        distance = focal * extent / (0.8 * size)
+        vertices = rest - centre + torch.tensor([0.0, 0.0, distance])
+        K = torch.tensor([[focal, 0, size / 2], [0, focal, size / 2], [0, 0, 1.0]])
+        light_position = torch.tensor(light if light is not None else [0.3 * distance, -0.4 * distance, 0.2 * distance],
+                                      dtype=torch.float32)
+        fitted = description.get("light", {})
+        ambient = torch.tensor(float(fitted.get("ambient", 0.6)))
+        use_shadows = fitted.get("shadows", False) if shadows is None else shadows
+        images = render(vertices, RenderMesh.from_model_data(model.data), K, size, size, outputs=("rgb",),
+                        appearance=appearance, light=Light(light_position, ambient, shadows=use_shadows),
+                        background=torch.tensor(background))
+    image = (images["rgb"][0].clamp(0, 1).numpy() * 255).round().astype(np.uint8)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(out), image[:, :, ::-1]):
+        raise OSError(f"could not write {out}")
+    return out
