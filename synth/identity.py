@@ -11,6 +11,8 @@ import dataclasses
 
 import numpy as np
 
+from pipeline.handmodel.digit_coordinates import smoothstep
+
 NUM_BETAS = 12
 FINGERTIPS = {"thumb": (15, 4), "index": (3, 8), "middle": (6, 12), "ring": (12, 16), "pinky": (9, 20)}
 """Per digit: (distal joint index, fingertip keypoint index)."""
@@ -100,7 +102,7 @@ def nail_weight(data, points, parts):
         across = np.abs(local[:, 0]) / (0.62 * radius)  # 1 at the nail's side edge
         along = np.clip((s - 0.42) / 0.2, 0, 1) * np.clip((1.02 - s) / 0.06, 0, 1)
         dorsal = np.clip((-local[:, 2] / radius - 0.25) / 0.25, 0, 1)
-        weight[on_digit] = _smoothstep(along) * _smoothstep(np.clip((1 - across) / 0.25, 0, 1)) * dorsal
+        weight[on_digit] = smoothstep(along) * smoothstep(np.clip((1 - across) / 0.25, 0, 1)) * dorsal
     return weight
 
 
@@ -112,10 +114,6 @@ def personal_offsets(data, identity, betas=None):
     field = np.clip(smooth_field(data.vertices, identity.seed), -2.5, 2.5) * identity.displacement_mm * 1e-3
     for digit, (_, tip) in FINGERTIPS.items():  # keep the fingertip keypoints on the skin
         distance = np.linalg.norm(data.vertices - data.keypoints[tip], axis=1)
-        field *= _smoothstep(np.clip(distance / TIP_FADE_RADIUS, 0, 1))
+        field *= smoothstep(np.clip(distance / TIP_FADE_RADIUS, 0, 1))
     nails = nail_weight(data, data.vertices, data.vertex_parts) * identity.nail_height_mm * 1e-3
     return (field + nails)[:, None] * normals
-
-
-def _smoothstep(x):
-    return x * x * (3 - 2 * x)

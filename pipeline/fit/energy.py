@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import torch
 
+from ..render.renderer import render
 from . import losses
 
 
@@ -12,8 +13,6 @@ def batch_energy(avatar, clip, batch, settings, stage, initial_keypoints, rest_r
     weights = settings.weights
     vertices, keypoints = avatar.posed(batch)
     outputs = ("alpha", "rgb") if stage.appearance else ("alpha",)
-    from ..render.renderer import render
-
     images = render(vertices, avatar.mesh, clip.K, clip.height, clip.width, outputs=outputs,
                     appearance=avatar.appearance() if stage.appearance else None,
                     light=avatar.light(shadows) if stage.appearance else None,

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import copy
 import json
-import math
 import signal
 import sys
 import time
@@ -195,7 +194,7 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
 def _optimiser(avatar, stage, settings):
     groups = []
     if stage.geometry:
-        groups.append({"params": avatar.parameter_group(("global_orient", "transl", "pose")), "lr": settings.lr_geometry})
+        groups.append({"params": avatar.parameter_group(PER_FRAME), "lr": settings.lr_geometry})
         groups.append({"params": [avatar.betas], "lr": settings.lr_betas})
         groups.append({"params": [avatar.displacement], "lr": settings.lr_displacement})
     if stage.appearance:
@@ -251,7 +250,3 @@ def _decide_shadows(avatar, state, reporter):
     on = ambient < SHADOW_AMBIENT_THRESHOLD
     state["shadows"].update(auto=True, decided=True, on=on, ambient_at_decision=ambient)
     reporter.log(f"shadows auto: fitted ambient ratio {ambient:.2f} -> self-shadowing {'on' if on else 'off'}")
-
-
-def is_finite_number(value):
-    return isinstance(value, float) and math.isfinite(value)

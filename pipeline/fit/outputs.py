@@ -3,6 +3,7 @@ input / render / difference, and an overlay video."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 from pathlib import Path
 
@@ -72,7 +73,7 @@ def write_outputs(out, sequence, avatar, clip, settings, state, initial, percept
         "perceptual_term": perceptual_name, "ambient": avatar.ambient.item(),
         "light_position": avatar.light_position.detach().cpu().tolist(),
     }
-    (out / REPORT_FILE).write_text(__import__("json").dumps(report, indent=2))
+    (out / REPORT_FILE).write_text(json.dumps(report, indent=2))
     return report
 
 

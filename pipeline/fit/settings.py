@@ -8,8 +8,6 @@ WEIGHTS = {  # appendix Table C.1
     "normal_consistency": 0.1, "edge_length": 0.2,
     "photometric": 1.0, "perceptual": 1.0, "texture": 2.0, "normal_map": 0.5,
 }
-GEOMETRY_TERMS = ("silhouette", "keypoint_anchor", "displacement", "laplacian", "normal_consistency", "edge_length")
-APPEARANCE_TERMS = ("photometric", "perceptual", "texture", "normal_map")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .pose_arrays import pose_array_problems
+
 FORMAT_NAME = "harp-initial-estimate"
 FORMAT_VERSION = 1
 FILE_NAME = "init.npz"
@@ -43,20 +45,10 @@ class InitialEstimate:
         return int(self.pose.shape[0])
 
     def validate(self) -> None:
-        F = self.pose.shape[0] if self.pose.ndim == 3 else -1
         problems = []
         if self.source not in SOURCES:
             problems.append(f"source {self.source!r} is not one of {SOURCES}")
-        expected = {"pose": (F, 16, 3), "global_orient": (F, 3), "transl": (F, 3),
-                    "keypoints3d": (F, 21, 3), "residual_px": (F,), "detected": (F,)}
-        for name, shape in expected.items():
-            if getattr(self, name).shape != shape:
-                problems.append(f"{name} has shape {getattr(self, name).shape}, expected {shape}")
-        if self.betas.ndim != 1:
-            problems.append(f"betas has shape {self.betas.shape}, expected (S,)")
-        for name in ("betas", "pose", "global_orient", "transl", "keypoints3d"):
-            if not np.isfinite(getattr(self, name)).all():
-                problems.append(f"{name} contains NaN or Inf")
+        problems += pose_array_problems(self, {"residual_px": (), "detected": ()})
         if problems:
             raise InitialEstimateError("invalid initial estimate: " + "; ".join(problems))
 

@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .pose_arrays import pose_array_problems
+
 FORMAT_NAME = "harp-sequence"
 FORMAT_VERSION = 1
 SEQUENCE_FILE = "sequence.json"
@@ -190,21 +192,12 @@ class GroundTruth:
             problems.append(f"mode {self.mode!r} is not one of {MODEL_MODES}")
         if self.side not in HAND_SIDES:
             problems.append(f"side {self.side!r} is not one of {HAND_SIDES}")
-        expected = {"pose": (F, 16, 3), "global_orient": (F, 3), "transl": (F, 3),
-                    "keypoints3d": (F, 21, 3), "keypoints2d": (F, 21, 2)}
-        if self.betas.ndim != 1:
-            problems.append(f"betas has shape {self.betas.shape}, expected (S,)")
-        for name, shape in expected.items():
-            if getattr(self, name).shape != shape:
-                problems.append(f"{name} has shape {getattr(self, name).shape}, expected {shape}")
+        problems += pose_array_problems(self, {"keypoints2d": (21, 2)}, finite=("keypoints2d",))
         if self.vertices is not None and (self.vertices.ndim != 3 or self.vertices.shape[0] != F
                                           or self.vertices.shape[2] != 3):
             problems.append(f"vertices has shape {self.vertices.shape}, expected ({F}, V, 3)")
         if self.personal_offsets is not None and self.personal_offsets.ndim != 2:
             problems.append(f"personal_offsets has shape {self.personal_offsets.shape}, expected (V, 3)")
-        for name in ("betas", "pose", "global_orient", "transl", "keypoints3d", "keypoints2d"):
-            if not np.isfinite(getattr(self, name)).all():
-                problems.append(f"{name} contains NaN or Inf")
         if problems:
             raise SequenceFolderError("invalid ground truth: " + "; ".join(problems))
 

@@ -21,7 +21,6 @@ class DigitCoordinates:
     nearest: np.ndarray        # (N, 3) nearest point on the (extended) chain polyline
     relative_distance: np.ndarray  # (N,) distance / influence radius at that arc length
     joint_arcs: np.ndarray     # (3,) arc length of the three joints (first is 0)
-    total_length: float
 
 
 def influence_radius(finger: anatomy.Finger, arc):
@@ -52,7 +51,7 @@ def digit_coordinates(points, finger: anatomy.Finger) -> DigitCoordinates:
         arc = np.where(better, joint_arcs[k] + t, arc)
         nearest = np.where(better[:, None], candidate, nearest)
     relative = best_distance / influence_radius(finger, np.clip(arc, 0, joint_arcs[-1]))
-    return DigitCoordinates(arc, nearest, relative, joint_arcs[:3], float(joint_arcs[-1]))
+    return DigitCoordinates(arc, nearest, relative, joint_arcs[:3])
 
 
 def all_digit_coordinates(points):

@@ -17,7 +17,3 @@ def joint_limit_penalty(pose, limits):
     under = torch.relu(lower - pose)
     return (over * over + under * under).sum(dim=(-1, -2))
 
-
-def clamp_to_limits(pose, limits):
-    """Project a pose into the limit box (used to sample plausible poses)."""
-    return torch.maximum(torch.minimum(pose, limits[..., 1]), limits[..., 0])

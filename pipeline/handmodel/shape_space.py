@@ -26,7 +26,6 @@ SHAPE_PARAMETERS = (
     ("forearm_length", "forearm length wrist to elbow, +5% per unit (hand+forearm mode)"),
     ("forearm_girth", "forearm girth, +6% per unit (hand+forearm mode)"),
 )
-SHAPE_NAMES = tuple(name for name, _ in SHAPE_PARAMETERS)
 DIGIT_BASE_BLEND = 0.006
 THICKNESS_FADE_IN = 0.025
 
