@@ -29,10 +29,19 @@ def _fit(args):
     from .fit.fitting import fit
 
     report = fit(args.sequence, args.out, preset=args.preset, resume=args.resume, progress=args.progress,
-                 device=args.device, shadows=args.shadows)
+                 device=args.device, shadows=args.shadows, hold_out_every=args.hold_out_every)
     scores = report["metrics"]
     print(f"wrote {args.out}: silhouette IoU min {scores['silhouette_iou_min']:.3f}, "
           f"PSNR in the mask {scores['psnr_mean']:.1f} dB, {report['total_seconds']:.0f} s")
+
+
+def _evaluate(args):
+    from .fit.evaluation import EVALUATION_FILE, evaluate_fit, summary_lines
+
+    result = evaluate_fit(args.fit, args.sequence, held_out_steps=args.held_out_steps, device=args.device)
+    for line in summary_lines(result):
+        print(line)
+    print(f"wrote {Path(args.fit) / EVALUATION_FILE}")
 
 
 def _import_video(args):
@@ -88,7 +97,17 @@ def build_parser():
     fit.add_argument("--resume", action="store_true", help="continue from the avatar folder's checkpoint")
     fit.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar")
     fit.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
+    fit.add_argument("--hold-out-every", type=int, default=None, metavar="N",
+                     help="leave every N-th frame out of the fit, for harp evaluate")
     fit.set_defaults(run=_fit)
+
+    evaluate = commands.add_parser("evaluate", help="score a fit: held-out frames; albedo and poses against the truth")
+    evaluate.add_argument("fit", help="avatar folder written by harp fit")
+    evaluate.add_argument("sequence", help="the sequence folder it was fitted to")
+    evaluate.add_argument("--held-out-steps", type=int, default=100, metavar="N",
+                          help="Adam steps of pose and light on the held-out frames (default 100)")
+    evaluate.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
+    evaluate.set_defaults(run=_evaluate)
 
     render = commands.add_parser("render", help="render an avatar in a new pose, view and light")
     render.add_argument("avatar", help="avatar folder written by harp fit")

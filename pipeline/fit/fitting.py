@@ -22,6 +22,7 @@ from ..render.antialias import edge_topology
 from .avatar import APPEARANCE, Avatar
 from .clip_data import load_clip
 from .energy import batch_energy
+from .held_out import held_out_frames, record_held_out
 from .perceptual import perceptual_term
 from .settings import settings_for
 
@@ -34,12 +35,14 @@ class FitError(ValueError):
     """The fit cannot start or continue (one-line message)."""
 
 
-def select_frames(count, maximum):
+def select_frames(count, maximum, exclude=()):
     """Evenly spaced frame indices (all of them when the clip is short enough): an even spread
-    over time keeps the clip's coverage of views for flipping and turning motions."""
-    if count <= maximum:
-        return np.arange(count)
-    return np.unique(np.round(np.linspace(0, count - 1, maximum)).astype(int))
+    over time keeps the clip's coverage of views for flipping and turning motions. Frames in
+    `exclude` (held out for evaluation, held_out.py) are never chosen."""
+    candidates = np.setdiff1d(np.arange(count), np.asarray(exclude, dtype=np.int64))
+    if len(candidates) <= maximum:
+        return candidates
+    return candidates[np.unique(np.round(np.linspace(0, len(candidates) - 1, maximum)).astype(int))]
 
 
 class Progress:
@@ -78,8 +81,9 @@ class Progress:
 
 
 def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None, shadows="auto",
-        max_steps=None, **overrides):
-    """Fit an avatar to a sequence folder with an init.npz; writes `out` and returns the report."""
+        max_steps=None, hold_out_every=None, **overrides):
+    """Fit an avatar to a sequence folder with an init.npz; writes `out` and returns the report.
+    hold_out_every=N leaves every N-th frame out of the fit (held_out.py) for held-out evaluation."""
     sequence, out = Path(sequence), Path(out)
     out.mkdir(parents=True, exist_ok=True)
     device = device or ("cuda" if torch.cuda.is_available() else "cpu")
@@ -87,7 +91,8 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
     settings = settings_for(preset, initial.frame_count, shadows=shadows, **overrides)
     if max_steps is not None:  # for tests: cap every stage
         settings.steps = tuple(min(s, max_steps) for s in settings.steps)
-    frames = select_frames(initial.frame_count, settings.max_frames)
+    held_out = held_out_frames(initial.frame_count, hold_out_every)
+    frames = select_frames(initial.frame_count, settings.max_frames, exclude=held_out)
     clip = load_clip(sequence, settings.resolution, frames, device=device)
     model = HandModel.load(initial.mode, initial.side, subdivided=True, device=device)
     avatar = Avatar(model, initial, frames, settings.texture_size)
@@ -188,7 +193,8 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
         reporter.close()
     from .outputs import write_outputs
 
-    return write_outputs(out, sequence, avatar, clip, settings, state, initial, perceptual_name)
+    report = write_outputs(out, sequence, avatar, clip, settings, state, initial, perceptual_name)
+    return record_held_out(out, report, held_out)
 
 
 def _optimiser(avatar, stage, settings):

@@ -1,0 +1,227 @@
+"""Evaluation of a fit: held-out frames, albedo in the visible UV area, pose errors against the
+ground truth, and `harp evaluate`, on a tiny synthetic clip (and analytic cases)."""
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from pipeline.fit import evaluation, fitting
+from pipeline.fit.held_out import held_out_frames
+from pipeline.fit.initial_from_ground_truth import compose_axis_angle, ground_truth_with_noise
+from pipeline.formats import avatar_folder as av
+from pipeline.formats import sequence_folder as seq
+from pipeline.formats.initial_estimate import read_initial_estimate, write_initial_estimate
+from pipeline.handmodel.lbs import HandModel, load_model_data
+from pipeline.handmodel.uv_atlas import uv_mask as atlas_mask
+from pipeline.render.renderer import RenderMesh
+
+ROOT = Path(__file__).resolve().parents[1]
+FIT_OPTIONS = dict(progress="none", max_steps=4, texture_size=64, batch_size=2, resolution=96, shadows="off",
+                   device="cpu")
+
+
+@pytest.fixture(scope="module")
+def tiny_clip(tmp_path_factory):
+    pytest.importorskip("bpy")
+    folder = tmp_path_factory.mktemp("clip") / "clip"
+    result = subprocess.run([sys.executable, str(ROOT / "synth" / "render.py"), "--out", str(folder), "--frames", "6",
+                             "--width", "96", "--height", "96", "--samples", "1", "--texture-size", "128",
+                             "--motion", "flip", "--mode", "hand"], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    gt = seq.read_ground_truth(folder / seq.GT_FILE)
+    write_initial_estimate(folder, ground_truth_with_noise(gt, joint_degrees=5, translation_m=0.005, seed=0))
+    return folder
+
+
+@pytest.fixture(scope="module")
+def held_out_fit(tiny_clip, tmp_path_factory):
+    out = tmp_path_factory.mktemp("fit") / "avatar"
+    report = fitting.fit(tiny_clip, out, hold_out_every=3, **FIT_OPTIONS)
+    return out, report
+
+
+def _procrustes_numpy(prediction, target):
+    """Mean distance after the best similarity transform, computed with scipy's Kabsch."""
+    p, t = prediction - prediction.mean(0), target - target.mean(0)
+    rotation, _ = Rotation.align_vectors(t, p)
+    rotated = rotation.apply(p)
+    scale = (rotated * t).sum() / (p * p).sum()
+    return np.linalg.norm(scale * rotated - t, axis=1).mean()
+
+
+# ------------------------------------------------------------------ held-out frames
+
+def test_held_out_frames_are_every_nth_and_never_fitted():
+    assert held_out_frames(10, 3).tolist() == [2, 5, 8]
+    assert held_out_frames(10, None).tolist() == []
+    with pytest.raises(ValueError):
+        held_out_frames(10, 1)
+    frames = fitting.select_frames(100, 30, exclude=held_out_frames(100, 4))
+    assert len(frames) == 30 and not set(frames) & set(held_out_frames(100, 4))
+    assert fitting.select_frames(100, 30).tolist() == np.unique(np.round(np.linspace(0, 99, 30)).astype(int)).tolist()
+
+
+def test_held_out_evaluation_fits_pose_and_light_only(held_out_fit, tiny_clip, monkeypatch):
+    out, report = held_out_fit
+    assert report["held_out_frames"] == [2, 5] and report["frames"] == [0, 1, 3, 4]
+    assert json.loads((out / "report.json").read_text())["held_out_frames"] == [2, 5]
+    saved = torch.load(out / fitting.CHECKPOINT_FILE, weights_only=False)
+    result = evaluation.evaluate_held_out(out, tiny_clip, steps=8, device="cpu")
+    for name in evaluation.FROZEN:                       # shape and appearance: bit for bit the fit's
+        assert torch.equal(getattr(result.avatar, name).detach(), saved["avatar"][name]), name
+    initial = read_initial_estimate(tiny_clip)
+    moved = np.abs(result.avatar.pose.detach().numpy() - initial.pose[[2, 5]]).max()
+    assert moved > 1e-5
+    assert not torch.equal(result.avatar.light_position.detach(), saved["avatar"]["light_position"])
+    assert result.loss_after < result.loss_before and len(result.history) == 8
+    assert result.history[0]["loss"] == pytest.approx(result.loss_before, rel=1e-5)
+    scores = result.metrics
+    assert len(scores["psnr"]) == 2 and all(np.isfinite(scores["psnr"])) and 0 < scores["silhouette_iou_mean"] <= 1
+    assert result.shadows is False
+    # the shadows decision of the fit is respected
+    shadowed = out.parent / "shadowed"
+    shutil.copytree(out, shadowed)
+    saved["state"]["shadows"]["on"] = True
+    torch.save(saved, shadowed / fitting.CHECKPOINT_FILE)
+    seen = []
+    original = evaluation.batch_energy
+    monkeypatch.setattr(evaluation, "batch_energy", lambda *args: seen.append(args[11]) or original(*args))
+    assert evaluation.evaluate_held_out(shadowed, tiny_clip, steps=1, device="cpu").shadows is True
+    assert seen and all(seen)
+
+
+# ------------------------------------------------------------------ albedo
+
+def test_albedo_error_of_known_differences():
+    rng = np.random.default_rng(0)
+    truth = rng.uniform(0.2, 0.8, (32, 32, 3))
+    visible = rng.uniform(size=(32, 32)) < 0.5
+    same = evaluation.albedo_error(truth, truth, visible)
+    assert same["mae"] == 0 and same["mae_scaled"] == 0 and same["texels"] == visible.sum()
+    shifted = evaluation.albedo_error(truth + 0.05, truth, visible)
+    assert shifted["mae"] == pytest.approx(0.05) and shifted["psnr"] == pytest.approx(20 * np.log10(1 / 0.05))
+    scales = np.array([0.8, 1.0, 1.25])
+    darker = truth * scales
+    darker[~visible] = 0.0                               # what is not seen does not count
+    scaled = evaluation.albedo_error(darker, truth, visible)
+    assert scaled["mae"] == pytest.approx(np.abs(truth * scales - truth)[visible].mean())
+    assert scaled["mae_scaled"] < 1e-12 and np.allclose(scaled["scale"], 1 / scales)
+
+
+def test_visible_texels_are_part_of_the_uv_area(tiny_clip):
+    gt = seq.read_ground_truth(tiny_clip / seq.GT_FILE)
+    info = seq.read_sequence_info(tiny_clip)
+    data = load_model_data(gt.mode, gt.side)
+    mesh = RenderMesh.from_model_data(data)
+    in_atlas = atlas_mask(data.uvs, data.faces_uv, 128)
+    vertices = torch.as_tensor(gt.vertices)
+    visible = evaluation.visible_texels(vertices, mesh, info.K, info.height, info.width, 128)
+    assert visible.any() and visible.sum() < in_atlas.sum()
+    assert in_atlas[visible].mean() > 0.97               # the nearest texel of a UV inside a chart
+    first = evaluation.visible_texels(vertices[:1], mesh, info.K, info.height, info.width, 128)
+    assert (visible | first).sum() == visible.sum() and first.sum() < visible.sum()
+    # the hand turned half around about its centre shows mostly other texels
+    centre = vertices[0].mean(0)
+    turned = (vertices[0] - centre) @ torch.as_tensor(Rotation.from_euler("y", 180, degrees=True).as_matrix().T,
+                                                      dtype=vertices.dtype) + centre
+    back = evaluation.visible_texels(turned[None], mesh, info.K, info.height, info.width, 128)
+    assert (first & back).sum() < 0.1 * min(first.sum(), back.sum())
+
+
+def test_albedo_error_of_a_fit_folder(held_out_fit, tiny_clip, tmp_path):
+    out, _ = held_out_fit
+    folder = tmp_path / "avatar"
+    shutil.copytree(out, folder)
+    truth = seq.read_rgb(tiny_clip / seq.GT_ALBEDO_FILE)
+    seq.write_png(folder / av.ALBEDO_FILE, truth)
+    same = evaluation.evaluate_albedo(folder, tiny_clip, device="cpu")
+    assert same["mae"] == 0 and same["mae_scaled"] < 1e-12 and same["texture_size"] == 128
+    assert (folder / evaluation.ALBEDO_PICTURE).is_file()
+    assert 0.1 < same["visible_fraction_of_uv_area"] < 1 and same["visibility_from"] == "gt.npz vertices"
+    darker = truth.astype(int) - 10
+    assert darker.min() >= 0                           # no clipping: the error is ten levels everywhere
+    seq.write_png(folder / av.ALBEDO_FILE, darker.astype(np.uint8))
+    shifted = evaluation.evaluate_albedo(folder, tiny_clip, device="cpu", picture=False)
+    assert shifted["mae"] == pytest.approx(10 / 255) and shifted["psnr"] == pytest.approx(20 * np.log10(25.5))
+    assert shifted["texels"] == same["texels"]
+    # the fit's own albedo (64 texels) is compared against the truth resized to 64
+    fitted = evaluation.evaluate_albedo(out, tiny_clip, device="cpu", picture=False)
+    assert fitted["texture_size"] == 64 and np.isfinite(fitted["psnr"]) and fitted["mae"] < 0.5
+
+
+# ------------------------------------------------------------------ poses
+
+def test_pose_error_of_the_truth_and_of_known_offsets(tiny_clip):
+    gt = seq.read_ground_truth(tiny_clip / seq.GT_FILE)
+    model = HandModel.load(gt.mode, gt.side, dtype=torch.float64)
+    joints, _ = evaluation._hand(model, gt.betas, gt.pose, gt.global_orient, gt.transl)
+    same = evaluation.point_errors(joints, gt.keypoints3d)
+    assert same["procrustes_mm_mean"] < 1e-3 and same["camera_mm_mean"] < 1e-3
+    # the whole hand turned by 20 degrees about its wrist: nothing left after alignment
+    offset = Rotation.from_rotvec([0.0, np.radians(20), 0.0])
+    turned = compose_axis_angle(np.repeat(offset.as_rotvec()[None], gt.frame_count, 0), gt.global_orient)
+    joints, _ = evaluation._hand(model, gt.betas, gt.pose, turned, gt.transl)
+    errors = evaluation.point_errors(joints, gt.keypoints3d)
+    relative = gt.keypoints3d - gt.transl[:, None]
+    expected = np.linalg.norm(offset.apply(relative.reshape(-1, 3)).reshape(relative.shape) - relative, axis=-1)
+    assert errors["procrustes_mm_mean"] < 1e-3
+    assert errors["camera_mm_mean"] == pytest.approx(expected.mean() * 1000, rel=1e-6)
+    # the index finger bent 30 degrees more at its PIP joint
+    pose = gt.pose.copy()
+    pose[:, 2] = compose_axis_angle(pose[:, 2], np.repeat([[np.radians(30), 0, 0]], gt.frame_count, 0))
+    joints, _ = evaluation._hand(model, gt.betas, pose, gt.global_orient, gt.transl)
+    errors = evaluation.point_errors(joints, gt.keypoints3d)
+    expected = [_procrustes_numpy(p, t) * 1000 for p, t in zip(joints.numpy(), gt.keypoints3d)]
+    assert errors["procrustes_mm"] == pytest.approx(expected, rel=1e-6) and min(expected) > 1
+
+
+def test_pose_errors_of_a_fit(held_out_fit, tiny_clip, tmp_path):
+    out, report = held_out_fit
+    gt = seq.read_ground_truth(tiny_clip / seq.GT_FILE)
+    initial = read_initial_estimate(tiny_clip)
+    frames = report["frames"]
+    result = evaluation.evaluate_poses(out, tiny_clip, device="cpu")
+    assert result["frames"] == frames and result["gt_keypoint_check_mm"] < 1e-3
+    expected = [_procrustes_numpy(p, t) * 1000 for p, t in zip(initial.keypoints3d[frames], gt.keypoints3d[frames])]
+    assert result["initial"]["joints"]["procrustes_mm"] == pytest.approx(expected, rel=1e-5)
+    for kind in ("joints", "vertices", "surface"):
+        assert 0 < result["fit"][kind]["procrustes_mm_mean"] < 20, kind
+    # a "fit" that found the truth (true shape and poses, no displacement) scores zero but for
+    # the person's own surface offsets, which the plain model lacks
+    truth_fit = tmp_path / "truth"
+    shutil.copytree(out, truth_fit)
+    saved = torch.load(out / fitting.CHECKPOINT_FILE, weights_only=False)
+    for name in ("betas", "global_orient", "transl", "pose"):
+        value = getattr(gt, name)[frames] if name != "betas" else gt.betas
+        saved["avatar"][name] = torch.as_tensor(value, dtype=torch.float32)
+    saved["avatar"]["displacement"].zero_()
+    torch.save(saved, truth_fit / fitting.CHECKPOINT_FILE)
+    perfect = evaluation.evaluate_poses(truth_fit, tiny_clip, device="cpu")["fit"]
+    assert perfect["joints"]["procrustes_mm_mean"] < 0.01 and perfect["joints"]["camera_mm_mean"] < 0.01
+    assert perfect["vertices"]["procrustes_mm_mean"] < 0.01
+    offsets = np.linalg.norm(gt.personal_offsets, axis=1).mean() * 1000
+    assert 0.8 * offsets < perfect["surface"]["camera_mm_mean"] < 1.2 * offsets
+
+
+# ------------------------------------------------------------------ harp evaluate
+
+def test_harp_evaluate_writes_evaluation_json(held_out_fit, tiny_clip, capsys):
+    from pipeline.cli import main
+
+    out, _ = held_out_fit
+    assert main(["evaluate", str(out), str(tiny_clip), "--held-out-steps", "2", "--device", "cpu"]) == 0
+    printed = capsys.readouterr().out
+    assert "held-out frames (2, 2 pose+light steps)" in printed and "albedo in the visible UV area" in printed
+    assert "pose error, fitted frames" in printed and "pose error, held-out frames" in printed
+    result = json.loads((out / evaluation.EVALUATION_FILE).read_text())
+    assert set(result) >= {"held_out", "albedo", "poses", "fit_frames"}
+    assert result["held_out"]["frames"] == [2, 5] and result["poses"]["held_out"]["frames"] == [2, 5]
+    assert (out / evaluation.ALBEDO_PICTURE).is_file()
+    assert main(["evaluate", str(out.parent / "missing"), str(tiny_clip)]) == 1
+    assert "not a finished fit" in capsys.readouterr().err
