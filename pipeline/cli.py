@@ -27,9 +27,20 @@ def _model_info(args):
 
 def _fit(args):
     from .fit.fitting import fit
+    from .formats.initial_estimate import read_initial_estimate
+    from .formats.sequence_folder import validate_sequence_folder
 
-    report = fit(args.sequence, args.out, preset=args.preset, resume=args.resume, progress=args.progress,
-                 device=args.device, shadows=args.shadows)
+    validate_sequence_folder(args.sequence)  # a missing or broken sequence, or no init.npz: one line,
+    read_initial_estimate(args.sequence)     # before --out is made
+    out = Path(args.out)
+    made = not out.exists()
+    try:
+        report = fit(args.sequence, out, preset=args.preset, resume=args.resume, progress=args.progress,
+                     device=args.device, shadows=args.shadows)
+    except (OSError, ValueError):
+        if made and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()  # nothing written on an error
+        raise
     scores = report["metrics"]
     print(f"wrote {args.out}: silhouette IoU min {scores['silhouette_iou_min']:.3f}, "
           f"PSNR in the mask {scores['psnr_mean']:.1f} dB, {report['total_seconds']:.0f} s")
