@@ -6,7 +6,7 @@ its long axis from frame to frame; a point light near the camera and a mottled s
 
     info = write_clip(folder, FIST)                          # 4 frames, 96 x 96, hand fills the view
     info = write_clip(folder, OPEN, size=128, hand_px=30)    # a hand about 30 px tall
-    info = write_clip(folder, OPEN, shift=(0.4, 0.0))        # moved right by 0.4 image widths
+    info = write_clip(folder, OPEN, shift=(0.0, -0.45))      # moved up: the fingers leave the image
 """
 from __future__ import annotations
 
@@ -48,9 +48,10 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
                turn_degrees=TURN_DEGREES):
     """Render `frames` frames of the hand in `pose` ((16, 3) or (F, 16, 3) axis-angle, radians,
     right hand) into the sequence folder `folder` with its exact ground truth (gt.npz,
-    gt_albedo.png). The hand (its bounding box in frame 0's pose, centred) is 80% of the image height, or is `hand_px` pixels tall;
-    `shift` moves it by fractions of the image (x right, y down); `azimuth` (degrees) turns the view
-    about the hand's long axis (90: from the thumb side). Returns the SequenceInfo."""
+    gt_albedo.png). The hand (its bounding box in frame 0's pose, centred) is 80% of the image
+    tall, or `hand_px` pixels; `shift` moves it by fractions of the image (x right, y down);
+    `azimuth` (degrees) turns the view about the hand's long axis (90: from the thumb side).
+    Returns the SequenceInfo."""
     model = HandModel.load("hand", "right", dtype=torch.float64)
     betas = np.zeros(model.num_betas) if betas is None else np.asarray(betas, dtype=np.float64)
     pose = np.broadcast_to(np.asarray(pose, dtype=np.float64), (frames, 16, 3)).copy()
