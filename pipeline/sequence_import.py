@@ -20,13 +20,18 @@ a 24 - 26 mm (35 mm equivalent) lens, and 26 mm over the 34.6 mm long side of a 
 Frames whose mask is empty (fewer than MIN_MASK_PIXELS hand pixels: the hand left the view or
 the segmenter missed it) are left out, reported in one warning line and recorded in
 sequence.json (`metadata.source_frames`, `metadata.dropped_frames`); every other problem stops
-the import with one ImportVideoError line before anything is written.
+the import with one ImportVideoError line before anything is written. FFmpeg's and the image
+libraries' own complaints (written straight to file descriptor 2) are kept off the terminal,
+so a damaged file gives that one line and nothing else.
 """
 from __future__ import annotations
 
+import contextlib
 import math
+import os
 import re
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +42,7 @@ from .formats.camera import intrinsics_from_fov
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 DEFAULT_FOV_DEG = 67.0          # across the longer side of the original frame (phone main camera)
 DEFAULT_FPS = 30.0              # for image folders
-MIN_MASK_PIXELS = 16            # fewer hand pixels than this: an empty mask frame
+MIN_MASK_PIXELS = seq.MIN_MASK_PIXELS  # fewer hand pixels than this: an empty mask frame
 MIN_FRAMES = 2                  # the fit needs more than one view
 MASK_THRESHOLD = 128
 
@@ -47,6 +52,25 @@ class ImportVideoError(ValueError):
 
 
 # --- sources ----------------------------------------------------------------------------------
+@contextlib.contextmanager
+def _quiet_decoder():
+    """Silence native log lines on stderr (file descriptor 2) while OpenCV opens or decodes:
+    FFmpeg prints "moov atom not found" and the like there; we report problems ourselves."""
+    sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:
+        yield
+        return
+    with open(os.devnull, "w") as null:
+        os.dup2(null.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+
+
 def _natural_key(path):
     return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", path.name)]
 
@@ -82,10 +106,24 @@ class FrameSource:
         capture.release()
         return float(fps) if fps and math.isfinite(fps) and 0 < fps < 1000 else None
 
+    @property
+    def stored_frames(self):
+        """Frame count a video file's header states (None for image folders or when unknown);
+        more than can be decoded when the file is damaged or truncated."""
+        if self.files is not None:
+            return None
+        import cv2
+
+        capture = self._open_video()
+        count = capture.get(cv2.CAP_PROP_FRAME_COUNT)
+        capture.release()
+        return int(count) if count and math.isfinite(count) and count > 0 else None
+
     def _open_video(self):
         import cv2
 
-        capture = cv2.VideoCapture(str(self.path))
+        with _quiet_decoder():
+            capture = cv2.VideoCapture(str(self.path))
         if not capture.isOpened():
             raise ImportVideoError(f"cannot read {self.label} {self.path}: not a video OpenCV can decode "
                                    "(or a folder of images)")
@@ -96,7 +134,8 @@ class FrameSource:
 
         if self.files is not None:
             for index, file in enumerate(self.files[:self.limit]):
-                image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
+                with _quiet_decoder():
+                    image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
                 if image is None:
                     raise ImportVideoError(f"cannot read {self.label} image {file}")
                 yield index, self._convert(image)
@@ -105,7 +144,8 @@ class FrameSource:
         index = 0
         try:
             while self.limit is None or index < self.limit:
-                ok, image = capture.read()
+                with _quiet_decoder():
+                    ok, image = capture.read()
                 if not ok:
                     break
                 yield index, self._convert(image)
@@ -216,7 +256,8 @@ def _scan(frames, masks, max_frames):
         if frame is None or mask is None:
             frame_count = count + (frame is not None) + sum(1 for _ in frame_iter)
             mask_count = count + (mask is not None) + sum(1 for _ in mask_iter)
-            raise ImportVideoError(f"frame/mask count mismatch: {frame_count} frames, {mask_count} masks")
+            raise ImportVideoError(f"frame/mask count mismatch: {frame_count} frames, {mask_count} masks"
+                                   + _damage_hint(frames, frame_count) + _damage_hint(masks, mask_count))
         index, image = frame
         _, mask_image = mask
         frame_size = (image.shape[1], image.shape[0])
@@ -238,6 +279,18 @@ def _scan(frames, masks, max_frames):
             boxes[index] = (cols.min(), rows.min(), cols.max() + 1, rows.max() + 1)
         count += 1
     return size, boxes, empty, count
+
+
+def _damage_hint(source, decoded):
+    """"; the video ... states N frames ..." when a video file decoded fewer frames than its
+    header states (a damaged or truncated file), else ""."""
+    if source.limit is not None:
+        return ""
+    stored = source.stored_frames
+    if stored is None or decoded >= stored:
+        return ""
+    return (f"; the {source.label} {source.path.name} states {stored} frames but only {decoded} could be "
+            "decoded (damaged or truncated file?)")
 
 
 def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto", fps=None, margin=0.15,

@@ -33,3 +33,13 @@ def random_pose(generator, batch, scale, dtype=torch.float64):
 @pytest.fixture
 def rng():
     return np.random.default_rng(0)
+
+
+@pytest.fixture
+def one_torch_thread():
+    """One torch thread for a test's small fits: they are as fast on one, and on a shared
+    machine two threads fighting other jobs made a 1 s fit take 23 s."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)

@@ -22,9 +22,10 @@ APPEARANCE = ("albedo", "normal_map", "light_position", "ambient_logit")
 class Avatar(torch.nn.Module):
     """Parameters of one fit. `model` is the subdivided HandModel of the clip's mode and side."""
 
-    def __init__(self, model: HandModel, initial, frames, texture_size=512, light_position=None):
+    def __init__(self, model: HandModel, initial, frames, texture_size=512, light_position=None, coarse_model=None):
         super().__init__()
         self.model = model
+        self.coarse_model = coarse_model   # the unsubdivided model, for the alignment stage
         dtype, device = model.v_template.dtype, model.v_template.device
 
         def parameter(array):
@@ -47,7 +48,10 @@ class Avatar(torch.nn.Module):
         self.register_buffer("pose_mask", torch.ones(16, 3, dtype=dtype, device=device))
         if model.mode == "hand":
             self.pose_mask[0] = 0
+        self.register_buffer("frame_numbers", torch.as_tensor(np.asarray(frames), device=device), persistent=False)
         self.mesh = RenderMesh.from_model_data(model.data, device=device, dtype=dtype)
+        if coarse_model is not None:
+            self.coarse_mesh = RenderMesh.from_model_data(coarse_model.data, device=device, dtype=dtype)
 
     def parameter_group(self, names):
         return [getattr(self, name) for name in names]
@@ -70,6 +74,13 @@ class Avatar(torch.nn.Module):
         out = self.model(self.betas, pose, self.global_orient[batch], self.transl[batch])
         normals = vertex_normals(out.vertices, self.mesh.faces)
         return out.vertices + self.displacement[None, :, None] * normals, out.keypoints
+
+    def posed_coarse(self, batch):
+        """(vertices, keypoints) of the unsubdivided model without displacements: the alignment's
+        cheap stand-in for `posed` (a quarter of the vertices)."""
+        out = self.coarse_model(self.betas, self.pose[batch] * self.pose_mask, self.global_orient[batch],
+                                self.transl[batch])
+        return out.vertices, out.keypoints
 
     def rest_mesh(self):
         """Personalised rest vertices (V, 3): shape applied, displaced along the rest normals."""

@@ -28,7 +28,8 @@ class ClipData:
 
 
 def load_clip(folder, resolution=None, frames=None, device=None, dtype=torch.float32):
-    """Frames and masks of a sequence folder, resized so the long side is `resolution`."""
+    """Frames and masks of a sequence folder, resized so the long side is `resolution`; an empty
+    or all-foreground mask stops with one SequenceFolderError line."""
     info = seq.validate_sequence_folder(folder)
     frames = np.arange(info.frame_count) if frames is None else np.asarray(frames)
     scale = 1.0 if resolution is None else resolution / max(info.width, info.height)
@@ -36,7 +37,9 @@ def load_clip(folder, resolution=None, frames=None, device=None, dtype=torch.flo
     images, masks = [], []
     for index in frames:
         rgb = seq.read_rgb(seq.frame_path(folder, info, int(index)))
-        mask = seq.read_mask(seq.mask_path(folder, info, int(index))).astype(np.float32)
+        hand = seq.read_mask(seq.mask_path(folder, info, int(index)))
+        seq.check_mask(hand, int(index))
+        mask = hand.astype(np.float32)
         if scale != 1.0:
             rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
             mask = cv2.resize(mask, size, interpolation=cv2.INTER_AREA)

@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from ..formats.initial_estimate import read_initial_estimate
+from ..formats.sequence_folder import validate_sequence_folder
 from ..handmodel.lbs import HandModel
 from ..handmodel.uv_atlas import uv_mask as atlas_mask
 from ..render.antialias import edge_topology
@@ -29,6 +30,7 @@ from .settings import settings_for
 CHECKPOINT_FILE = "checkpoint.pt"
 SHADOW_AMBIENT_THRESHOLD = 0.75   # a fitted ambient ratio below this means a dominant light
 ROLLBACK_EVERY = 20
+DIVERGENCE_FACTOR = 1.5   # a full-batch loss this much above the best so far counts as divergence
 
 
 class FitError(ValueError):
@@ -85,17 +87,20 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
     """Fit an avatar to a sequence folder with an init.npz; writes `out` and returns the report.
     hold_out_every=N leaves every N-th frame out of the fit (held_out.py) for held-out evaluation."""
     sequence, out = Path(sequence), Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     device = device or ("cuda" if torch.cuda.is_available() else "cpu")
+    validate_sequence_folder(sequence)
     initial = read_initial_estimate(sequence)
     settings = settings_for(preset, initial.frame_count, shadows=shadows, **overrides)
     if max_steps is not None:  # for tests: cap every stage
         settings.steps = tuple(min(s, max_steps) for s in settings.steps)
+        settings.align_steps = min(settings.align_steps, max_steps)
     held_out = held_out_frames(initial.frame_count, hold_out_every)
     frames = select_frames(initial.frame_count, settings.max_frames, exclude=held_out)
     clip = load_clip(sequence, settings.resolution, frames, device=device)
+    out.mkdir(parents=True, exist_ok=True)
     model = HandModel.load(initial.mode, initial.side, subdivided=True, device=device)
-    avatar = Avatar(model, initial, frames, settings.texture_size)
+    coarse_model = HandModel.load(initial.mode, initial.side, subdivided=False, device=device)
+    avatar = Avatar(model, initial, frames, settings.texture_size, coarse_model=coarse_model)
     torch.manual_seed(settings.seed)
     generator = torch.Generator().manual_seed(settings.seed)
     topology = edge_topology(avatar.mesh.faces)
@@ -107,7 +112,8 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
     uv_mask = torch.as_tensor(atlas_mask(model.data.uvs, model.data.faces_uv, settings.texture_size),
                               device=device, dtype=clip.images.dtype)
     perceptual_name, perceptual = perceptual_term(settings.perceptual_weights, device)
-    state = {"stage": 0, "step": 0, "history": [], "events": [], "stage_seconds": [0.0, 0.0, 0.0],
+    stages = settings.stages()
+    state = {"stage": 0, "step": 0, "history": [], "events": [], "stage_seconds": [0.0] * len(stages),
              "shadows": {"auto": None, "decided": settings.shadows != "auto", "on": settings.shadows == "on"}}
     checkpoint_path = out / CHECKPOINT_FILE
     optimiser_state = None
@@ -119,10 +125,9 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
         state.update(saved["state"])
         optimiser_state = saved["optimiser"]
         generator.set_state(saved["generator"])
-    stages = settings.stages()
     reporter = Progress(progress, sum(s.steps for s in stages) - sum(s.steps for s in stages[:state["stage"]]) - state["step"])
     reporter.log(f"fitting {len(frames)} frames ({initial.mode} mode, {initial.side} hand) with preset "
-                 f"{preset}, perceptual term {perceptual_name}; expected time {settings.expected_seconds() / 60:.1f} min on {device}")
+                 f"{preset}, perceptual term {perceptual_name}; expected time {settings.expected_seconds(len(frames)) / 60:.1f} min on {device}")
     interrupted = {"flag": False}
     previous_handler = signal.signal(signal.SIGINT, lambda *_: interrupted.__setitem__("flag", True))
 
@@ -140,6 +145,7 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
                 optimiser.load_state_dict(optimiser_state)
                 optimiser_state = None
             last_good = _snapshot(avatar, optimiser)
+            best_loss = float("inf")
             last_save = time.time()
             stage_start = time.time() - state["stage_seconds"][stage_index]
             order = state.pop("order", [])
@@ -152,8 +158,9 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
                     raise KeyboardInterrupt
                 if not order:
                     order = torch.randperm(len(frames), generator=generator).tolist()
-                batch = torch.tensor(order[:settings.batch_size], device=device)
-                order = order[settings.batch_size:]
+                size = len(frames) if stage.coarse else settings.batch_size
+                batch = torch.tensor(order[:size], device=device)
+                order = order[size:]
                 shadows_on = stage.appearance and state["shadows"]["on"]
                 loss, terms = batch_energy(avatar, clip, batch, settings, stage, initial_keypoints, initial_vertices,
                                            edges, face_pairs, perceptual, uv_mask, shadows_on, generator)
@@ -162,11 +169,14 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
                     loss.backward()
                     _mask_frozen_gradients(avatar)
                     _lazy_step(avatar, optimiser, batch)
-                if not torch.isfinite(loss) or not _finite(avatar):
+                diverged = stage.coarse and loss.item() > DIVERGENCE_FACTOR * best_loss  # full batches: comparable
+                best_loss = min(best_loss, loss.item()) if torch.isfinite(loss) else best_loss
+                if not torch.isfinite(loss) or not _finite(avatar) or diverged:
                     _restore(avatar, optimiser, last_good)
                     for group in optimiser.param_groups:
                         group["lr"] *= 0.5
-                    message = f"non-finite loss at {stage.name} step {state['step']}: rolled back, learning rates halved"
+                    problem = f"loss rose to {loss.item():.4g} from {best_loss:.4g}" if diverged else "non-finite loss"
+                    message = f"{problem} at {stage.name} step {state['step']}: rolled back, learning rates halved"
                     state["events"].append(message)
                     reporter.log(message)
                     state["step"] += 1
@@ -199,7 +209,11 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
 
 def _optimiser(avatar, stage, settings):
     groups = []
-    if stage.geometry:
+    if stage.coarse:  # rotations and translations at their own rates; no displacements yet
+        groups.append({"params": [avatar.global_orient, avatar.pose], "lr": settings.lr_align_rotation})
+        groups.append({"params": [avatar.transl], "lr": settings.lr_align_translation})
+        groups.append({"params": [avatar.betas], "lr": settings.lr_betas})
+    elif stage.geometry:
         groups.append({"params": avatar.parameter_group(PER_FRAME), "lr": settings.lr_geometry})
         groups.append({"params": [avatar.betas], "lr": settings.lr_betas})
         groups.append({"params": [avatar.displacement], "lr": settings.lr_displacement})

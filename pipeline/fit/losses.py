@@ -105,3 +105,30 @@ def normal_map_loss(normal_map, uv_mask, generator=None, sigma_px=2.0):
     flat = normal_map.new_tensor([0.0, 0.0, 1.0]).view(3, 1, 1)
     pull = (normal_map - flat).square().sum(0)
     return ((smooth + pull) / 3 * uv_mask).sum() / uv_mask.sum().clamp(min=1)
+
+
+def _per_frame_step(values, times):
+    """Differences of consecutive per-frame values (F, ...) divided by their time gaps (frames)."""
+    gaps = (times[1:] - times[:-1]).to(values.dtype).clamp(min=1)
+    return (values[1:] - values[:-1]) / gaps.view(-1, *([1] * (values.dim() - 1)))
+
+
+def temporal_pose_loss(pose, times):
+    """Mean over consecutive frames of the squared change of the joint rotations (F, J, 3)
+    per frame of time (radians^2): fingers move little between video frames. `times` (F,)
+    are the frames' indices in the clip, so subsampled or held-out gaps count as longer."""
+    if len(pose) < 2:
+        return pose.new_zeros(())
+    return _per_frame_step(pose, times).square().sum((1, 2)).mean()
+
+
+def temporal_global_loss(rotations, translations, times, translation_unit=0.01):
+    """Mean squared acceleration of the hand's global rotation matrices (F, 3, 3) and
+    translations (F, 3) (in units of 1 cm) per frame^2: the whole hand may turn fast but smoothly.
+    Rotation matrices instead of axis-angle vectors: no jump at 180 degrees."""
+    if len(rotations) < 3:
+        return rotations.new_zeros(())
+    middle = ((times[2:] - times[:-2]).to(rotations.dtype) / 2).clamp(min=1)
+    rotation = _per_frame_step(_per_frame_step(rotations, times), times[1:]) / middle.view(-1, 1, 1)
+    translation = _per_frame_step(_per_frame_step(translations / translation_unit, times), times[1:]) / middle.view(-1, 1)
+    return rotation.square().sum((1, 2)).mean() + translation.square().sum(1).mean()

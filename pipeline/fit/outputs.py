@@ -67,7 +67,7 @@ def write_outputs(out, sequence, avatar, clip, settings, state, initial, percept
         last[entry["stage"]] = entry
     report = {
         "sequence": str(sequence), "frames": clip.frames.tolist(), "preset": settings.preset,
-        "stage_seconds": dict(zip(["geometry", "geometry+appearance", "appearance"], state["stage_seconds"])),
+        "stage_seconds": dict(zip([stage.name for stage in settings.stages()], state["stage_seconds"])),
         "total_seconds": float(sum(state["stage_seconds"])), "output_seconds": time.time() - start,
         "final_losses": last, "metrics": scores, "shadows": state["shadows"], "events": state["events"],
         "perceptual_term": perceptual_name, "ambient": avatar.ambient.item(),

@@ -7,6 +7,8 @@ WEIGHTS = {  # appendix Table C.1
     "silhouette": 7.0, "keypoint_anchor": 10.0, "displacement": 2.0, "laplacian": 4.0,
     "normal_consistency": 0.1, "edge_length": 0.2,
     "photometric": 1.0, "perceptual": 1.0, "texture": 2.0, "normal_map": 0.5,
+    # ours, not in the table: hands move smoothly at video rates (losses.temporal_*)
+    "temporal_pose": 10.0, "temporal_global": 1.0,
 }
 
 
@@ -16,6 +18,7 @@ class Stage:
     steps: int
     geometry: bool          # geometry parameters move, geometry terms count
     appearance: bool        # appearance parameters move, appearance terms count
+    coarse: bool = False    # every frame in each step, on the unsubdivided mesh, no displacements
 
 
 @dataclasses.dataclass
@@ -25,6 +28,9 @@ class FitSettings:
     texture_size: int = 256
     batch_size: int = 6
     steps: tuple = (200, 300, 200)  # geometry; geometry + appearance; appearance
+    align_steps: int = 100          # coarse alignment of every frame before the geometry stage
+    lr_align_rotation: float = 1e-2
+    lr_align_translation: float = 1e-3
     lr_geometry: float = 1e-3       # rotations (rad) and translations (m) per Adam step
     lr_betas: float = 1e-2          # shape units per step
     lr_displacement: float = 1e-4   # metres per step
@@ -36,15 +42,19 @@ class FitSettings:
     checkpoint_seconds: float = 120.0
     seed: int = 0
     seconds_per_step: tuple = (0.08, 0.25, 0.2)  # rough CPU cost per step of each stage, for the estimate
+    seconds_per_align_frame: float = 0.005
 
     def stages(self):
+        """The alignment (ours: it widens the basin the three stages start from), then the
+        appendix's three stages."""
         geometry, joint, appearance = self.steps
-        return (Stage("geometry", geometry, True, False), Stage("geometry+appearance", joint, True, True),
-                Stage("appearance", appearance, False, True))
+        return (Stage("align", self.align_steps, True, False, coarse=True), Stage("geometry", geometry, True, False),
+                Stage("geometry+appearance", joint, True, True), Stage("appearance", appearance, False, True))
 
-    def expected_seconds(self):
+    def expected_seconds(self, frame_count):
         scale = (self.batch_size / 6) * (self.resolution / 256) ** 2
-        return sum(s * c for s, c in zip(self.steps, self.seconds_per_step)) * scale
+        align = self.align_steps * min(frame_count, self.max_frames) * self.seconds_per_align_frame
+        return sum(s * c for s, c in zip(self.steps, self.seconds_per_step)) * scale + align
 
 
 PRESETS = {

@@ -41,6 +41,8 @@ def write_avatar_json(folder, description: dict) -> Path:
 
 def read_avatar_json(folder) -> dict:
     path = Path(folder) / AVATAR_FILE
+    if not Path(folder).is_dir():
+        raise AvatarFolderError(f"avatar folder not found: {Path(folder)}")
     if not path.is_file():
         raise AvatarFolderError(f"not an avatar folder (no {AVATAR_FILE}): {Path(folder)}")
     try:

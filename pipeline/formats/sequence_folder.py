@@ -39,6 +39,7 @@ MASK_PATTERN = "mask/{index:06d}.png"
 GT_FORMAT_VERSION = 1
 HAND_SIDES = ("right", "left")
 MODEL_MODES = ("hand", "arm")
+MIN_MASK_PIXELS = 16   # a mask with fewer hand pixels is empty (hand out of view, or missed)
 
 
 class SequenceFolderError(ValueError):
@@ -306,8 +307,8 @@ def png_size(path) -> tuple:
     """(width, height) of a PNG, read from its header."""
     with open(path, "rb") as handle:
         head = handle.read(24)
-    if len(head) < 24 or head[:8] != b"\x89PNG\r\n\x1a\n":
-        raise SequenceFolderError(f"{path} is not a PNG file")
+    if len(head) < 24 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
+        raise SequenceFolderError(f"{path} is not a PNG file (or its header is damaged)")
     return struct.unpack(">II", head[16:24])
 
 
@@ -319,6 +320,19 @@ def read_rgb(path) -> np.ndarray:
     if image is None:
         raise SequenceFolderError(f"cannot read image {path}")
     return image[..., ::-1].copy()
+
+
+def check_mask(mask, index) -> None:
+    """Raise SequenceFolderError (one line) unless the (H, W) bool mask of frame `index` shows a
+    hand: an empty mask (fewer than MIN_MASK_PIXELS hand pixels) or one that is hand everywhere
+    (inverted?) cannot guide a fit."""
+    pixels = int(mask.sum())
+    if pixels < MIN_MASK_PIXELS:
+        raise SequenceFolderError(f"mask {index} is empty (fewer than {MIN_MASK_PIXELS} hand pixels): leave the "
+                                  "frame out of the sequence (harp import-video does) or mend the mask")
+    if pixels == mask.size:
+        raise SequenceFolderError(f"mask {index} is all foreground (every pixel is hand); masks must be white "
+                                  "(>= 128) on the hand and black elsewhere - inverted?")
 
 
 def read_mask(path) -> np.ndarray:

@@ -1,0 +1,112 @@
+"""Tiny sequence folders rendered with the project's own renderer from exact ground truth (no
+Blender, well under a second each): for tests that need a particular pose, framing or hand
+size. The hand is the right hand-only model with the average shape unless `betas` are given,
+seen from the back with the fingers up (synth's viewpoint convention), turning a little about
+its long axis from frame to frame; a point light near the camera and a mottled skin albedo.
+
+    info = write_clip(folder, FIST)                          # 4 frames, 96 x 96, hand fills the view
+    info = write_clip(folder, OPEN, size=128, hand_px=30)    # a hand about 30 px tall
+    info = write_clip(folder, OPEN, shift=(0.0, -0.45))      # moved up: the fingers leave the image
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from pipeline.formats import sequence_folder as seq
+from pipeline.formats.camera import project
+from pipeline.handmodel.lbs import HandModel
+from pipeline.render.renderer import Appearance, Light, RenderMesh, render
+from synth.viewpoint import place_hand, view_rotation
+
+BACKGROUND = (0.25, 0.27, 0.3)
+TURN_DEGREES = 12.0      # rotation about the hand's long axis between frames
+AMBIENT = 0.6
+
+
+def mottled_albedo(size=128, seed=0):
+    """(3, size, size) skin albedo in [0, 1] with smooth blotches (something for the
+    photometric term to fit)."""
+    rng = np.random.default_rng(seed)
+    v, u = np.mgrid[0:size, 0:size] / size
+    blotches = sum(np.sin(2 * np.pi * (f1 * u + f2 * v) + phase)
+                   for f1, f2, phase in rng.uniform([1, 1, 0], [6, 6, 2 * np.pi], (6, 3))) / 6
+    skin = np.array([0.85, 0.66, 0.56])[:, None, None]
+    return np.clip(skin * (1 + 0.25 * blotches[None]), 0, 1)
+
+
+def posed_box(model, pose, betas):
+    """(centre (3,), height) of the bounding box of the hand posed in `pose`, in model space
+    (metres): the pivot the clip turns the hand about and its height in the front view."""
+    with torch.no_grad():
+        vertices = model(torch.as_tensor(betas), torch.as_tensor(pose[None])).vertices[0].numpy()
+    low, high = vertices.min(0), vertices.max(0)
+    return 0.5 * (low + high), float(high[1] - low[1])
+
+
+def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=(0.0, 0.0), azimuth=0.0, betas=None,
+               turn_degrees=TURN_DEGREES):
+    """Render `frames` frames of the hand in `pose` ((16, 3) or (F, 16, 3) axis-angle, radians,
+    right hand) into the sequence folder `folder` with its exact ground truth (gt.npz,
+    gt_albedo.png). The hand (its bounding box in frame 0's pose, centred) is 80% of the image
+    tall, or `hand_px` pixels; `shift` moves it by fractions of the image (x right, y down);
+    `azimuth` (degrees) turns the view about the hand's long axis (90: from the thumb side).
+    Returns the SequenceInfo."""
+    model = HandModel.load("hand", "right", dtype=torch.float64)
+    betas = np.zeros(model.num_betas) if betas is None else np.asarray(betas, dtype=np.float64)
+    pose = np.broadcast_to(np.asarray(pose, dtype=np.float64), (frames, 16, 3)).copy()
+    pose[:, 0] = 0  # no wrist joint without a forearm
+    focal = focal or 2000.0 * size / 448
+    K = np.array([[focal, 0, size / 2], [0, focal, size / 2], [0, 0, 1.0]])
+    pivot, height_m = posed_box(model, pose[0], betas)
+    distance = focal * height_m / (hand_px or 0.8 * size)
+    turns = np.zeros((frames, 3))
+    turns[:, 1] = np.radians(turn_degrees) * (np.arange(frames) - (frames - 1) / 2)
+    global_orient, transl = place_hand(view_rotation(azimuth, 0.0), turns, pivot, distance)
+    transl = transl + distance / focal * size * np.array([shift[0], shift[1], 0.0])
+
+    with torch.no_grad():
+        out = model(torch.as_tensor(betas), torch.as_tensor(pose), torch.as_tensor(global_orient),
+                    torch.as_tensor(transl))
+        albedo = mottled_albedo()
+        light = Light(torch.tensor([0.1, -0.2, 0.0], dtype=torch.float64), torch.tensor(AMBIENT, dtype=torch.float64))
+        images = render(out.vertices, RenderMesh.from_model_data(model.data, dtype=torch.float64),
+                        torch.as_tensor(K), size, size, outputs=("rgb", "alpha"),
+                        appearance=Appearance(torch.as_tensor(albedo)), light=light,
+                        background=torch.tensor(BACKGROUND, dtype=torch.float64))
+    info = seq.SequenceInfo(fps=30.0, width=size, height=size, frame_count=frames, hand_side="right", K=K,
+                            ground_truth=seq.GT_FILE, albedo=seq.GT_ALBEDO_FILE,
+                            metadata={"generator": "tests/exact_clips.py", "distance_m": distance})
+    for index in range(frames):
+        seq.write_png(seq.frame_path(folder, info, index), _to_uint8(images["rgb"][index].numpy()))
+        seq.write_png(seq.mask_path(folder, info, index), np.where(images["alpha"][index, ..., 0].numpy() >= 0.5,
+                                                                   255, 0).astype(np.uint8))
+    keypoints3d = out.keypoints[:, :21].numpy()
+    keypoints2d = project(keypoints3d.reshape(-1, 3), K)[0].reshape(frames, 21, 2)
+    seq.write_ground_truth(folder / seq.GT_FILE, seq.GroundTruth(
+        mode="hand", side="right", betas=betas, global_orient=global_orient, transl=transl, pose=pose,
+        keypoints3d=keypoints3d, keypoints2d=keypoints2d, vertices=out.vertices.numpy(),
+        light={"preset": "tests/exact_clips.py", "position": [0.1, -0.2, 0.0], "ambient": AMBIENT}))
+    seq.write_png(folder / seq.GT_ALBEDO_FILE, _to_uint8(albedo.transpose(1, 2, 0)))
+    seq.write_sequence_info(folder, info)
+    return info
+
+
+def fraction_outside(folder):
+    """Share of the hand's silhouette (all frames) that falls outside the image: the ground-truth
+    vertices rendered on a canvas three times the image's size."""
+    info = seq.read_sequence_info(folder)
+    gt = seq.read_ground_truth(folder / seq.GT_FILE)
+    model = HandModel.load("hand", "right", dtype=torch.float64)
+    K = np.array(info.K, dtype=np.float64)
+    K[0, 2] += info.width
+    K[1, 2] += info.height
+    with torch.no_grad():
+        alpha = render(torch.as_tensor(gt.vertices, dtype=torch.float64), RenderMesh.from_model_data(model.data),
+                       torch.as_tensor(K), 3 * info.height, 3 * info.width, antialiased=False)["alpha"][..., 0]
+    inside = alpha[:, info.height:2 * info.height, info.width:2 * info.width].sum()
+    return float(1 - inside / alpha.sum())
+
+
+def _to_uint8(image):
+    return (np.clip(image, 0, 1) * 255).round().astype(np.uint8)
