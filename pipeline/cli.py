@@ -74,19 +74,19 @@ def _render(args):
 
 
 def _demo(args):
-    """The quick-start job: build the hand model from scratch and picture it."""
-    out = Path(args.out)
-    _model_build(argparse.Namespace(out=out / "model"))
-    _model_preview(argparse.Namespace(out=out / "hand_model.png", size=300, side="right", model=out / "model"))
-    _model_info(argparse.Namespace(model=out / "model"))
+    """The quick-start job: a synthetic clip, its initialisation, the fast fit and its figures."""
+    from .demo import run_demo
+
+    run_demo(args.out, progress=args.progress)
 
 
 def build_parser():
     parser = argparse.ArgumentParser(prog="harp", description=__doc__)
     commands = parser.add_subparsers(dest="command", required=True)
 
-    demo = commands.add_parser("demo", help="run the built-in example")
+    demo = commands.add_parser("demo", help="run the built-in example: render a synthetic clip, fit it, evaluate")
     demo.add_argument("--out", default="harp_demo", help="output folder (default: harp_demo)")
+    demo.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar")
     demo.set_defaults(run=_demo)
 
     fit = commands.add_parser("fit", help="fit an avatar to a sequence folder that has an init.npz")

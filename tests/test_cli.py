@@ -6,24 +6,38 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline.cli import main
+import pytest
+
+from pipeline.cli import build_parser, main
+from pipeline.demo import run_demo
 from pipeline.formats import hand_model_file as fmt
 from pipeline.handmodel.measurements import joint_limits_markdown
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_demo_builds_the_model_and_its_picture(tmp_path, capsys):
-    assert main(["demo", "--out", str(tmp_path)]) == 0
-    for mode in fmt.MODES:
-        built = fmt.load_hand_model(tmp_path / "model" / f"hand_model_{mode}.npz")
-        shipped = fmt.load_hand_model(fmt.model_path(mode))
-        assert np.allclose(built.vertices, shipped.vertices, atol=1e-12)
-    image = cv2.imread(str(tmp_path / "hand_model.png"))
-    assert image is not None and image.shape[0] == 600 and image.shape[1] == 9 * 300
-    assert (image < 250).mean() > 0.1  # something was drawn
-    out = capsys.readouterr().out
-    assert "hand length" in out and "palm width" in out
+@pytest.mark.slow
+def test_demo_renders_initialises_fits_and_evaluates(tmp_path):
+    """The README's main job, shrunk (6 frames, 160 px, a few steps): every output appears."""
+    pytest.importorskip("bpy")
+    lines = []
+    result = run_demo(tmp_path, progress="none", log=lines.append, max_steps=3, frames=6, width=160, height=160,
+                      samples=2)
+    for path in ("clip/gt.npz", "clip/init.npz", "avatar/albedo.png", "avatar/rig.npz", "avatar/fit_grid.png",
+                 "avatar/overlay.mp4", "avatar/report.json", "avatar/evaluation.json"):
+        assert (tmp_path / path).is_file(), path
+    assert len(result["metrics"]["silhouette_iou"]) == 6 and result["metrics"]["silhouette_iou_min"] > 0.5
+    assert np.isfinite(result["evaluation"]["poses"]["fit"]["joints"]["procrustes_mm_mean"])
+    for picture in result["pictures"]:
+        image = cv2.imread(str(picture))
+        assert image is not None and image.std() > 5  # the hand is drawn on the grey background
+    assert any(line.startswith("demo finished") for line in lines)
+    assert any("initialised from MediaPipe" in line for line in lines)
+
+
+def test_demo_is_the_default_job():
+    args = build_parser().parse_args(["demo"])
+    assert args.run.__name__ == "_demo" and args.out == "harp_demo"
 
 
 def test_preview_of_the_left_hand(tmp_path):

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Create ./.venv and install the project into it (CPU build of torch).
-#   bash tools/setup.sh          the `harp` command and its dependencies
-#   bash tools/setup.sh --test   also pytest and bpy (Blender as a module, ~800 MB)
+#   bash tools/setup.sh          the `harp` command and its dependencies (bpy, Blender as a
+#                                module, ~800 MB, renders the demo's synthetic clip)
+#   bash tools/setup.sh --test   also pytest
 set -euo pipefail
 cd "$(dirname "$0")/.."
 python=${PYTHON:-python3.11}
@@ -14,7 +15,7 @@ fi
 .venv/bin/python -m pip install --quiet torch==2.13.0
 extras=""
 if [ "${1:-}" = "--test" ]; then
-    extras="[test,blender]"
+    extras="[test]"
 fi
 .venv/bin/python -m pip install --quiet -e ".${extras}"
 # one working OpenCV: mediapipe pulls in the non-headless opencv-contrib-python (and other
