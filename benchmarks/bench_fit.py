@@ -11,6 +11,8 @@ held_out  the same clip fitted with every 5th frame left out, then pose, transla
 pose      the same clip from `--init gt-noise` (10 degrees per joint, 1 cm): Procrustes-aligned
           joint error of the initial estimate, of the geometry stages alone and of the full fit.
 sun       the clip under the `sun` preset (MediaPipe initialisation): shadows on, off and auto.
+perceptual  the demo clip fitted with photometric L1 alone (perceptual weight 0), to compare
+          with the demo's fit (photometric + the weight-free perceptual term).
 Figures go to stdout and to DIR/bench_fit.json (merged with earlier runs).
 """
 from __future__ import annotations
@@ -33,7 +35,7 @@ from pipeline.fit.evaluation import evaluate_fit  # noqa: E402
 from pipeline.fit.fitting import fit  # noqa: E402
 from pipeline.fit.initialisation import initialise_sequence  # noqa: E402
 
-SECTIONS = ("demo", "held_out", "pose", "sun")
+SECTIONS = ("demo", "held_out", "pose", "sun", "perceptual")
 
 
 def quiet(message):
@@ -120,6 +122,18 @@ def bench_sun(work):
         figures[shadows] = {**image_scores(report["metrics"]), "seconds": report["total_seconds"],
                             "shadows": report["shadows"], "ambient": report["ambient"]}
     return figures
+
+
+def bench_perceptual(work):
+    from pipeline.fit.settings import WEIGHTS
+
+    clip = clip_copy(demo_clip(work), work / "perceptual_clip")
+    out = work / "photometric_only"
+    report = fit(clip, out, preset="fast", progress="none", weights={**WEIGHTS, "perceptual": 0.0})
+    evaluation = evaluate_fit(out, clip)
+    albedo = evaluation["albedo"]
+    return {"photometric_only": {**image_scores(report["metrics"]), "albedo_mae": albedo["mae"],
+                                 "albedo_psnr": albedo["psnr"]}}
 
 
 def main():

@@ -41,8 +41,8 @@ class FitSettings:
     perceptual_weights: str | None = None   # local VGG16 file; default: weight-free pyramid
     checkpoint_seconds: float = 120.0
     seed: int = 0
-    seconds_per_step: tuple = (0.08, 0.25, 0.2)  # rough CPU cost per step of each stage, for the estimate
-    seconds_per_align_frame: float = 0.005
+    seconds_per_step: tuple = (0.12, 0.35, 0.24)  # 2-core CPU cost per step of each stage, for the estimate
+    seconds_per_align_frame: float = 0.006
 
     def stages(self):
         """The alignment (ours: it widens the basin the three stages start from), then the
