@@ -99,3 +99,21 @@ def test_silhouette_and_displacement_terms():
     alpha = torch.full((1, 4, 4, 1), 0.25)
     assert losses.silhouette_loss(alpha, mask).item() == pytest.approx(0.25)
     assert losses.displacement_loss(torch.tensor([0.001, -0.002])).item() == pytest.approx(5e-6)
+
+
+def test_temporal_terms_vanish_on_steady_motion_and_count_time_gaps():
+    times = torch.tensor([0, 1, 2, 4, 5])
+    pose = torch.zeros(5, 16, 3)
+    assert losses.temporal_pose_loss(pose, times) == 0
+    pose[:, 3, 0] = 0.1 * times          # a finger bending at 0.1 rad per frame, gaps included
+    assert losses.temporal_pose_loss(pose, times).item() == pytest.approx(0.01, rel=1e-5)
+    # steady translation (2 mm per frame) and a fixed rotation: no acceleration
+    rotations = torch.as_tensor(Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix(), dtype=torch.float32).expand(5, 3, 3)
+    translations = torch.stack([0.002 * times, 0 * times, 0.5 + 0 * times], 1).float()
+    assert losses.temporal_global_loss(rotations, translations, times).item() == pytest.approx(0, abs=1e-8)
+    # frame 1 shifted by 1 cm: velocities (1, -1, 0, 0) cm per frame (the gap of two frames
+    # halves the third), changes (-2, 1, 0) over half spans (1, 1.5, 1.5) frames
+    jolted = translations.clone()
+    jolted[1, 1] += 0.01
+    expected = np.mean([(-2 / 1) ** 2, (1 / 1.5) ** 2, 0.0])
+    assert losses.temporal_global_loss(rotations, jolted, times).item() == pytest.approx(expected, rel=1e-4)

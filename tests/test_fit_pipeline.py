@@ -62,7 +62,7 @@ def test_interrupt_then_resume_reaches_the_same_result(tiny_clip, tmp_path, monk
 
     def interrupting(*args, **kwargs):
         calls["count"] += 1
-        if calls["count"] == 9:            # stage two, step three
+        if calls["count"] == 9:            # the geometry stage (after 6 alignment steps), step three
             os.kill(os.getpid(), signal.SIGINT)
         return original(*args, **kwargs)
 
@@ -126,3 +126,14 @@ def test_render_the_avatar_in_new_poses_views_and_lights(tiny_clip, tmp_path):
     assert np.abs(pictures["rest"] - pictures["turned"]).mean() > 2
     assert main(["render", str(out), "--frame", "99", "--out", str(tmp_path / "x.png")]) == 1
     assert main(["render", str(tmp_path / "nothing"), "--out", str(tmp_path / "x.png")]) == 1
+
+
+def test_alignment_in_chunks_equals_one_batch(tiny_clip, tmp_path, monkeypatch):
+    """A long clip's alignment step renders its frames in chunks: the same step as one batch."""
+    options = dict(progress="none", max_steps=3, texture_size=64, resolution=96, steps=(0, 0, 0))
+    whole = fitting.fit(tiny_clip, tmp_path / "whole", **options)
+    monkeypatch.setattr(fitting, "ALIGN_CHUNK_FRAMES", 1)
+    chunked = fitting.fit(tiny_clip, tmp_path / "chunked", **options)
+    assert whole["final_losses"]["align"]["loss"] == pytest.approx(chunked["final_losses"]["align"]["loss"], rel=1e-4)
+    first, second = (av.read_poses(tmp_path / name) for name in ("whole", "chunked"))
+    assert np.allclose(first["pose"], second["pose"], atol=1e-5)

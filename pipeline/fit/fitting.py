@@ -30,6 +30,7 @@ from .settings import settings_for
 CHECKPOINT_FILE = "checkpoint.pt"
 SHADOW_AMBIENT_THRESHOLD = 0.75   # a fitted ambient ratio below this means a dominant light
 ROLLBACK_EVERY = 20
+ALIGN_CHUNK_FRAMES = 32   # frames rendered at once in the alignment's full batches
 DIVERGENCE_FACTOR = 1.5   # a full-batch loss this much above the best so far counts as divergence
 
 
@@ -162,11 +163,19 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
                 batch = torch.tensor(order[:size], device=device)
                 order = order[size:]
                 shadows_on = stage.appearance and state["shadows"]["on"]
-                loss, terms = batch_energy(avatar, clip, batch, settings, stage, initial_keypoints, initial_vertices,
-                                           edges, face_pairs, perceptual, uv_mask, shadows_on, generator)
                 optimiser.zero_grad(set_to_none=True)
+                # a long clip's full batch is rendered in chunks; their gradients add up
+                loss, terms = 0.0, {}
+                for chunk in batch.split(ALIGN_CHUNK_FRAMES):
+                    share = len(chunk) / len(batch)
+                    part, part_terms = batch_energy(avatar, clip, chunk, settings, stage, initial_keypoints,
+                                                    initial_vertices, edges, face_pairs, perceptual, uv_mask,
+                                                    shadows_on, generator)
+                    if torch.isfinite(part):
+                        (part * share).backward()
+                    loss = loss + part.detach() * share
+                    terms = {name: terms.get(name, 0.0) + value * share for name, value in part_terms.items()}
                 if torch.isfinite(loss):
-                    loss.backward()
                     _mask_frozen_gradients(avatar)
                     _lazy_step(avatar, optimiser, batch)
                 diverged = stage.coarse and loss.item() > DIVERGENCE_FACTOR * best_loss  # full batches: comparable

@@ -125,10 +125,15 @@ def temporal_pose_loss(pose, times):
 def temporal_global_loss(rotations, translations, times, translation_unit=0.01):
     """Mean squared acceleration of the hand's global rotation matrices (F, 3, 3) and
     translations (F, 3) (in units of 1 cm) per frame^2: the whole hand may turn fast but smoothly.
-    Rotation matrices instead of axis-angle vectors: no jump at 180 degrees."""
+    Rotation matrices instead of axis-angle vectors: no jump at 180 degrees. The acceleration
+    at frame i is the change of velocity over half the span (t[i+1] - t[i-1])."""
     if len(rotations) < 3:
         return rotations.new_zeros(())
-    middle = ((times[2:] - times[:-2]).to(rotations.dtype) / 2).clamp(min=1)
-    rotation = _per_frame_step(_per_frame_step(rotations, times), times[1:]) / middle.view(-1, 1, 1)
-    translation = _per_frame_step(_per_frame_step(translations / translation_unit, times), times[1:]) / middle.view(-1, 1)
-    return rotation.square().sum((1, 2)).mean() + translation.square().sum(1).mean()
+    half_span = ((times[2:] - times[:-2]).to(rotations.dtype) / 2).clamp(min=1)
+
+    def acceleration(values):
+        velocity = _per_frame_step(values, times)
+        return (velocity[1:] - velocity[:-1]) / half_span.view(-1, *([1] * (values.dim() - 1)))
+
+    return (acceleration(rotations).square().sum((1, 2)).mean()
+            + acceleration(translations / translation_unit).square().sum(1).mean())
