@@ -32,7 +32,8 @@ def _fit(args):
                  device=args.device, shadows=args.shadows, hold_out_every=args.hold_out_every)
     scores = report["metrics"]
     print(f"wrote {args.out}: silhouette IoU min {scores['silhouette_iou_min']:.3f}, "
-          f"PSNR in the mask {scores['psnr_mean']:.1f} dB, {report['total_seconds']:.0f} s")
+          f"PSNR in the mask {scores['psnr_mean']:.1f} dB (render over the input {scores['psnr_over_input_mean']:.1f} dB), "
+          f"{report['total_seconds']:.0f} s")
 
 
 def _evaluate(args):

@@ -21,25 +21,31 @@ def batch_energy(avatar, clip, batch, settings, stage, initial_keypoints, rest_r
                     background=torch.zeros(3, dtype=vertices.dtype, device=vertices.device))
     masks, frames = clip.masks[batch], clip.images[batch]
     terms = {}
+
+    def add(name, term):
+        """A term switched off (weight 0) is not computed: it costs nothing."""
+        if weights.get(name, 0.0) != 0.0:
+            terms[name] = term()
+
     if stage.geometry:
-        terms["silhouette"] = losses.silhouette_loss(images["alpha"], masks)
-        terms["keypoint_anchor"] = losses.keypoint_anchor_loss(keypoints[:, :21], initial_keypoints[batch])
+        add("silhouette", lambda: losses.silhouette_loss(images["alpha"], masks))
+        add("keypoint_anchor", lambda: losses.keypoint_anchor_loss(keypoints[:, :21], initial_keypoints[batch]))
         # over every frame (no rendering involved): the batch's frames feel their neighbours
-        terms["temporal_pose"] = losses.temporal_pose_loss(avatar.pose * avatar.pose_mask, avatar.frame_numbers)
-        terms["temporal_global"] = losses.temporal_global_loss(axis_angle_to_matrix(avatar.global_orient),
-                                                               avatar.transl, avatar.frame_numbers)
+        add("temporal_pose", lambda: losses.temporal_pose_loss(avatar.pose * avatar.pose_mask, avatar.frame_numbers))
+        add("temporal_global", lambda: losses.temporal_global_loss(axis_angle_to_matrix(avatar.global_orient),
+                                                                   avatar.transl, avatar.frame_numbers))
     if stage.geometry and not stage.coarse:
-        terms["displacement"] = losses.displacement_loss(avatar.displacement)
-        terms["laplacian"] = losses.laplacian_loss(vertices, edges)
-        terms["normal_consistency"] = losses.normal_consistency_loss(vertices, avatar.mesh.faces, face_pairs)
-        terms["edge_length"] = losses.edge_length_loss(vertices, rest_reference[batch], edges)
+        add("displacement", lambda: losses.displacement_loss(avatar.displacement))
+        add("laplacian", lambda: losses.laplacian_loss(vertices, edges))
+        add("normal_consistency", lambda: losses.normal_consistency_loss(vertices, avatar.mesh.faces, face_pairs))
+        add("edge_length", lambda: losses.edge_length_loss(vertices, rest_reference[batch], edges))
     if stage.appearance:
         rendered = images["rgb"]
         target = frames * masks
-        terms["photometric"] = losses.photometric_loss(rendered, target, masks)
-        terms["perceptual"] = perceptual(rendered * masks, target, masks)
-        terms["texture"] = losses.texture_smoothness_loss(avatar.albedo, uv_mask, generator)
-        terms["normal_map"] = losses.normal_map_loss(torch.nn.functional.normalize(avatar.normal_map, dim=0),
-                                                     uv_mask, generator)
-    total = sum(weights.get(name, 0.0) * value for name, value in terms.items())
+        add("photometric", lambda: losses.photometric_loss(rendered, target, masks))
+        add("perceptual", lambda: perceptual(rendered * masks, target, masks))
+        add("texture", lambda: losses.texture_smoothness_loss(avatar.albedo, uv_mask, generator))
+        add("normal_map", lambda: losses.normal_map_loss(torch.nn.functional.normalize(avatar.normal_map, dim=0),
+                                                         uv_mask, generator))
+    total = sum((weights[name] * value for name, value in terms.items()), vertices.new_zeros(()))
     return total, {name: float(value.detach()) for name, value in terms.items()}

@@ -170,7 +170,7 @@ def evaluate_held_out(fit_folder, sequence, frames=None, steps=100, device=None)
                 (loss * share).backward()
             total += float(loss.detach()) * share
             for name in HELD_OUT_TERMS:
-                terms[name] += parts[name] * share
+                terms[name] += parts.get(name, 0.0) * share
         return total, terms
 
     with torch.no_grad():

@@ -38,15 +38,23 @@ def render_all(avatar, clip, shadows, batch_size=8):
 
 
 def evaluate(rgb, alpha, clip):
-    """Per-frame silhouette IoU and, inside the mask, L1 and PSNR; MS-SSIM on the masked frames."""
+    """Per-frame silhouette IoU and, inside the mask, L1 and PSNR of the render over black (a
+    mask pixel the render misses counts in full); MS-SSIM on the masked frames. Also the PSNR of
+    the render composited over the input frame by its alpha (as fit_grid.png and overlay.mp4
+    show it), which measures the appearance where the render covers the hand."""
     masks = clip.masks
     target = clip.images * masks
     composed = rgb * masks
+    overlaid = (rgb * alpha + clip.images * (1 - alpha)) * masks
     iou = metrics.silhouette_iou(alpha, masks)
     l1 = torch.stack([metrics.l1(composed[i:i + 1], target[i:i + 1], masks[i:i + 1]) for i in range(len(rgb))])
     psnr = torch.stack([metrics.psnr(composed[i:i + 1], target[i:i + 1], masks[i:i + 1]) for i in range(len(rgb))])
+    psnr_overlaid = torch.stack([metrics.psnr(overlaid[i:i + 1], target[i:i + 1], masks[i:i + 1])
+                                 for i in range(len(rgb))])
     result = {"silhouette_iou": iou.tolist(), "l1": l1.tolist(), "psnr": psnr.tolist(),
-              "silhouette_iou_min": float(iou.min()), "psnr_mean": float(psnr.mean()), "l1_mean": float(l1.mean())}
+              "psnr_over_input": psnr_overlaid.tolist(), "silhouette_iou_min": float(iou.min()),
+              "psnr_mean": float(psnr.mean()), "psnr_over_input_mean": float(psnr_overlaid.mean()),
+              "l1_mean": float(l1.mean())}
     if min(clip.height, clip.width) >= 176:
         ms = metrics.ms_ssim(composed.double(), target.double())
         result.update(ms_ssim=ms.tolist(), ms_ssim_mean=float(ms.mean()))
