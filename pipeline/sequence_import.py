@@ -26,18 +26,16 @@ so a damaged file gives that one line and nothing else.
 """
 from __future__ import annotations
 
-import contextlib
 import math
-import os
 import re
 import shutil
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from .formats import sequence_folder as seq
 from .formats.camera import intrinsics_from_fov
+from .quiet_stderr import native_stderr_silenced
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 DEFAULT_FOV_DEG = 67.0          # across the longer side of the original frame (phone main camera)
@@ -52,25 +50,6 @@ class ImportVideoError(ValueError):
 
 
 # --- sources ----------------------------------------------------------------------------------
-@contextlib.contextmanager
-def _quiet_decoder():
-    """Silence native log lines on stderr (file descriptor 2) while OpenCV opens or decodes:
-    FFmpeg prints "moov atom not found" and the like there; we report problems ourselves."""
-    sys.stderr.flush()
-    try:
-        saved = os.dup(2)
-    except OSError:
-        yield
-        return
-    with open(os.devnull, "w") as null:
-        os.dup2(null.fileno(), 2)
-        try:
-            yield
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-
-
 def _natural_key(path):
     return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", path.name)]
 
@@ -122,7 +101,7 @@ class FrameSource:
     def _open_video(self):
         import cv2
 
-        with _quiet_decoder():
+        with native_stderr_silenced():
             capture = cv2.VideoCapture(str(self.path))
         if not capture.isOpened():
             raise ImportVideoError(f"cannot read {self.label} {self.path}: not a video OpenCV can decode "
@@ -134,7 +113,7 @@ class FrameSource:
 
         if self.files is not None:
             for index, file in enumerate(self.files[:self.limit]):
-                with _quiet_decoder():
+                with native_stderr_silenced():
                     image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
                 if image is None:
                     raise ImportVideoError(f"cannot read {self.label} image {file}")
@@ -144,7 +123,7 @@ class FrameSource:
         index = 0
         try:
             while self.limit is None or index < self.limit:
-                with _quiet_decoder():
+                with native_stderr_silenced():
                     ok, image = capture.read()
                 if not ok:
                     break

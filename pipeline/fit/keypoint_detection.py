@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..quiet_stderr import native_stderr_silenced
+
 KEYPOINT_COUNT = 21
 MEDIAPIPE_LABEL = {"right": "Left", "left": "Right"}   # MediaPipe's label for an unmirrored image
 PAD_FRACTION = 0.5          # padding around each frame before detection, fraction of its size
@@ -79,18 +81,8 @@ def _quiet_native_logs():
     """Silence MediaPipe's C++ log lines on stderr (file descriptor 2) for a block."""
     os.environ.setdefault("GLOG_minloglevel", "2")
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
-    try:
-        saved = os.dup(2)
-    except OSError:
+    with native_stderr_silenced():
         yield
-        return
-    with open(os.devnull, "w") as null:
-        os.dup2(null.fileno(), 2)
-        try:
-            yield
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
 
 
 class MediaPipeHands:
