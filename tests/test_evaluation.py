@@ -2,26 +2,23 @@
 ground truth, and `harp evaluate`, on a tiny synthetic clip (and analytic cases)."""
 import json
 import shutil
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
+from synth_clips import render_tiny_clip
 from pipeline.fit import evaluation, fitting
 from pipeline.fit.held_out import held_out_frames
-from pipeline.fit.initial_from_ground_truth import compose_axis_angle, ground_truth_with_noise
+from pipeline.fit.initial_from_ground_truth import compose_axis_angle
 from pipeline.formats import avatar_folder as av
 from pipeline.formats import sequence_folder as seq
-from pipeline.formats.initial_estimate import read_initial_estimate, write_initial_estimate
+from pipeline.formats.initial_estimate import read_initial_estimate
 from pipeline.handmodel.lbs import HandModel, load_model_data
 from pipeline.handmodel.uv_atlas import uv_mask as atlas_mask
 from pipeline.render.renderer import RenderMesh
 
-ROOT = Path(__file__).resolve().parents[1]
 FIT_OPTIONS = dict(progress="none", max_steps=4, texture_size=64, batch_size=2, resolution=96, shadows="off",
                    device="cpu")
 
@@ -30,13 +27,7 @@ FIT_OPTIONS = dict(progress="none", max_steps=4, texture_size=64, batch_size=2, 
 def tiny_clip(tmp_path_factory):
     pytest.importorskip("bpy")
     folder = tmp_path_factory.mktemp("clip") / "clip"
-    result = subprocess.run([sys.executable, str(ROOT / "synth" / "render.py"), "--out", str(folder), "--frames", "6",
-                             "--width", "96", "--height", "96", "--samples", "1", "--texture-size", "128",
-                             "--motion", "flip", "--mode", "hand"], capture_output=True, text=True, timeout=300)
-    assert result.returncode == 0, result.stderr
-    gt = seq.read_ground_truth(folder / seq.GT_FILE)
-    write_initial_estimate(folder, ground_truth_with_noise(gt, joint_degrees=5, translation_m=0.005, seed=0))
-    return folder
+    return render_tiny_clip(folder, frames=6)
 
 
 @pytest.fixture(scope="module")

@@ -1,34 +1,22 @@
 """The fit end to end on a tiny synthetic clip: outputs, checkpoint and resume, rollback."""
 import json
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
+from synth_clips import render_tiny_clip
 from pipeline.fit import fitting
-from pipeline.fit.initial_from_ground_truth import ground_truth_with_noise
 from pipeline.formats import avatar_folder as av
 from pipeline.formats import hand_model_file as fmt
-from pipeline.formats import sequence_folder as seq
-from pipeline.formats.initial_estimate import write_initial_estimate
 
 pytest.importorskip("bpy")
-ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
 def tiny_clip(tmp_path_factory):
     folder = tmp_path_factory.mktemp("clip") / "clip"
-    result = subprocess.run([sys.executable, str(ROOT / "synth" / "render.py"), "--out", str(folder), "--frames", "4",
-                             "--width", "96", "--height", "96", "--samples", "1", "--texture-size", "128",
-                             "--motion", "flip", "--mode", "hand"], capture_output=True, text=True, timeout=300)
-    assert result.returncode == 0, result.stderr
-    gt = seq.read_ground_truth(folder / seq.GT_FILE)
-    write_initial_estimate(folder, ground_truth_with_noise(gt, joint_degrees=5, translation_m=0.005, seed=0))
-    return folder
+    return render_tiny_clip(folder, frames=4)
 
 
 def test_fit_writes_a_complete_avatar(tiny_clip, tmp_path):
