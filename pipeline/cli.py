@@ -27,13 +27,11 @@ def _model_info(args):
 
 def _fit(args):
     from .fit.fitting import fit
+    from .fit.outputs import metrics_line
 
     report = fit(args.sequence, args.out, preset=args.preset, resume=args.resume, progress=args.progress,
                  device=args.device, shadows=args.shadows, hold_out_every=args.hold_out_every)
-    scores = report["metrics"]
-    print(f"wrote {args.out}: silhouette IoU min {scores['silhouette_iou_min']:.3f}, "
-          f"PSNR in the mask {scores['psnr_mean']:.1f} dB (render over the input {scores['psnr_over_input_mean']:.1f} dB), "
-          f"{report['total_seconds']:.0f} s")
+    print(f"wrote {args.out} in {report['total_seconds']:.0f} s: {metrics_line(report['metrics'])}")
 
 
 def _evaluate(args):

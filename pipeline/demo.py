@@ -46,6 +46,7 @@ def run_demo(out, progress="bar", log=print, max_steps=None, **clip_changes):
     from .fit.evaluation import evaluate_fit, summary_lines
     from .fit.fitting import fit
     from .fit.initialisation import initialise_sequence
+    from .fit.outputs import metrics_line
 
     out = Path(out)
     clip, avatar = out / "clip", out / "avatar"
@@ -61,10 +62,7 @@ def run_demo(out, progress="bar", log=print, max_steps=None, **clip_changes):
                 for pose in NEW_POSES]
     scores = report["metrics"]
     seconds = time.time() - start
-    iou = scores["silhouette_iou"]
-    log(f"fit: silhouette IoU min {min(iou):.3f} (mean {sum(iou) / len(iou):.3f}), PSNR in the mask "
-        f"{scores['psnr_mean']:.1f} dB (render over the input {scores['psnr_over_input_mean']:.1f} dB), "
-        f"MS-SSIM {scores.get('ms_ssim_mean', float('nan')):.3f}")
+    log(f"fit: {metrics_line(scores)}")
     log(f"demo finished in {seconds / 60:.1f} min: avatar in {avatar}, pictures {avatar / 'fit_grid.png'}, "
         + ", ".join(str(p) for p in pictures))
     return {"seconds": seconds, "metrics": scores, "evaluation": evaluation, "pictures": pictures}

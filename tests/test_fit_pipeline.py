@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from synth_clips import render_tiny_clip
+from synth_clips import ROOT, render_tiny_clip
 from pipeline.fit import fitting
 from pipeline.formats import avatar_folder as av
 from pipeline.formats import hand_model_file as fmt
@@ -66,6 +66,42 @@ def test_interrupt_then_resume_reaches_the_same_result(tiny_clip, tmp_path, monk
     assert final(resumed) == pytest.approx(final(reference), rel=0.01)
     with pytest.raises(fitting.FitError, match="nothing to resume"):
         fitting.fit(tiny_clip, tmp_path / "fresh", resume=True, progress="none")
+
+
+def test_killed_fit_resumes_from_its_last_checkpoint(tiny_clip, tmp_path):
+    """A fit process killed outright (SIGKILL, no chance to save) right after a stage-end
+    checkpoint: --resume finishes it with the final loss of an uninterrupted run (within 1%)."""
+    import subprocess
+    import sys
+    import time
+
+    options = dict(progress="none", max_steps=6, texture_size=64, batch_size=2, resolution=96, device="cpu")
+    reference = fitting.fit(tiny_clip, tmp_path / "reference", **options)
+    out = tmp_path / "killed"
+    # the child is slowed down per step so that it is surely still fitting when it is killed
+    child = subprocess.Popen([sys.executable, "-c", f"""
+import sys, time
+sys.path.insert(0, {str(ROOT)!r})
+from pipeline.fit import fitting
+original = fitting.batch_energy
+def slowed(*args, **kwargs):
+    time.sleep(0.1)
+    return original(*args, **kwargs)
+fitting.batch_energy = slowed
+fitting.fit({str(tiny_clip)!r}, {str(out)!r}, **{options!r})
+"""], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    checkpoint = out / fitting.CHECKPOINT_FILE
+    deadline = time.time() + 240
+    while not checkpoint.is_file() and child.poll() is None and time.time() < deadline:
+        time.sleep(0.02)
+    assert child.poll() is None, child.stderr.read().decode()    # still fitting: the kill is real
+    child.kill()
+    child.wait()
+    saved = torch.load(checkpoint, weights_only=False)
+    assert saved["state"]["stage"] == 1 and saved["state"]["step"] == 0   # the alignment's end
+    resumed = fitting.fit(tiny_clip, out, resume=True, **options)
+    final = lambda report: report["final_losses"]["appearance"]["loss"]  # noqa: E731
+    assert final(resumed) == pytest.approx(final(reference), rel=0.01)
 
 
 def test_non_finite_loss_rolls_back(tiny_clip, tmp_path, monkeypatch):

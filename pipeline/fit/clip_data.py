@@ -2,9 +2,12 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import cv2
 import numpy as np
+import scipy.sparse
+import scipy.sparse.linalg
 import torch
 
 from ..formats import sequence_folder as seq
@@ -25,6 +28,12 @@ class ClipData:
     @property
     def width(self):
         return self.images.shape[2]
+
+    @functools.cached_property
+    def backgrounds(self):
+        """(F, H, W, 3) background plates (background_plates): what renders are composited over
+        when they are compared with the frames."""
+        return background_plates(self.images, self.masks)
 
 
 def load_clip(folder, resolution=None, frames=None, device=None, dtype=torch.float32):
@@ -50,3 +59,51 @@ def load_clip(folder, resolution=None, frames=None, device=None, dtype=torch.flo
     return ClipData(torch.as_tensor(np.stack(images), dtype=dtype, device=device),
                     torch.as_tensor(np.stack(masks)[..., None], dtype=dtype, device=device),
                     torch.as_tensor(K, dtype=dtype, device=device), info, frames)
+
+
+def background_plates(images, masks, margin=2):
+    """Each frame with the hand filled in from its surroundings: an estimate of what the camera
+    saw behind the hand. Rendered over it, an antialiased silhouette edge blends into the same
+    colours as in the photograph, and a hand pixel the render misses shows background there.
+    The mask is grown by `margin` px so the blended ring just outside it is filled too.
+    images (F, H, W, 3) in [0, 1], masks (F, H, W, 1) in {0, 1}; returns a tensor like images."""
+    kernel = np.ones((2 * margin + 1, 2 * margin + 1), np.uint8)
+    plates = []
+    for image, mask in zip(images.cpu().numpy().astype(np.float64), masks.cpu().numpy()):
+        hole = cv2.dilate((mask[..., 0] > 0.5).astype(np.uint8), kernel).astype(bool)
+        plates.append(harmonic_fill(image, hole))
+    return torch.as_tensor(np.stack(plates), dtype=images.dtype, device=images.device)
+
+
+def harmonic_fill(image, hole):
+    """image (H, W, C) with the pixels of `hole` (H, W) bool replaced by the solution of
+    Laplace's equation whose boundary values are the known pixels around them: the smoothest
+    fill, exact for flat and linearly shaded backgrounds. Sides of the hole on the image's
+    border are free (zero normal derivative). A frame with no known pixel is filled grey."""
+    if not hole.any():
+        return image.copy()
+    if hole.all():
+        return np.full_like(image, 0.5)
+    height, width = hole.shape
+    ys, xs = np.nonzero(hole)
+    count = len(ys)
+    index = np.full(hole.shape, -1, np.int64)
+    index[ys, xs] = np.arange(count)
+    neighbours = np.zeros(count)
+    rows, cols = [], []
+    rhs = np.zeros((count, image.shape[-1]))
+    for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        ny, nx = ys + dy, xs + dx
+        k = np.nonzero((ny >= 0) & (ny < height) & (nx >= 0) & (nx < width))[0]
+        neighbours[k] += 1
+        unknown = hole[ny[k], nx[k]]
+        rows.append(k[unknown])
+        cols.append(index[ny[k[unknown]], nx[k[unknown]]])
+        known = k[~unknown]
+        rhs[known] += image[ny[known], nx[known]]
+    rows, cols = np.concatenate([np.arange(count), *rows]), np.concatenate([np.arange(count), *cols])
+    values = np.concatenate([neighbours, -np.ones(len(rows) - count)])
+    laplacian = scipy.sparse.csc_matrix((values, (rows, cols)), shape=(count, count))
+    filled = image.copy()
+    filled[ys, xs] = scipy.sparse.linalg.splu(laplacian).solve(rhs)
+    return filled

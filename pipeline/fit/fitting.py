@@ -112,7 +112,8 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
     initial_keypoints = initial_keypoints[:, :21].detach()
     uv_mask = torch.as_tensor(atlas_mask(model.data.uvs, model.data.faces_uv, settings.texture_size),
                               device=device, dtype=clip.images.dtype)
-    perceptual_name, perceptual = perceptual_term(settings.perceptual_weights, device)
+    perceptual_name, perceptual = ("off (weight 0)", None) if settings.weights.get("perceptual", 0.0) == 0.0 \
+        else perceptual_term(settings.perceptual_weights, device)
     stages = settings.stages()
     state = {"stage": 0, "step": 0, "history": [], "events": [], "stage_seconds": [0.0] * len(stages),
              "shadows": {"auto": None, "decided": settings.shadows != "auto", "on": settings.shadows == "on"}}
@@ -133,8 +134,10 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
     previous_handler = signal.signal(signal.SIGINT, lambda *_: interrupted.__setitem__("flag", True))
 
     def save_checkpoint(optimiser):
+        """optimiser None at a stage's end: the next stage starts a fresh one."""
         temporary = checkpoint_path.with_suffix(".tmp")
-        torch.save({"avatar": avatar.state_dict(), "state": state, "optimiser": optimiser.state_dict(),
+        torch.save({"avatar": avatar.state_dict(), "state": state,
+                    "optimiser": None if optimiser is None else optimiser.state_dict(),
                     "generator": generator.get_state(), "settings": vars(settings)}, temporary)
         temporary.replace(checkpoint_path)
 
@@ -206,7 +209,7 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
                     last_save = time.time()
             state["stage_seconds"][stage_index] = time.time() - stage_start
             state["stage"], state["step"] = stage_index + 1, 0
-            save_checkpoint(optimiser)
+            save_checkpoint(None)
     finally:
         signal.signal(signal.SIGINT, previous_handler)
         reporter.close()

@@ -24,41 +24,47 @@ REPORT_FILE = "report.json"
 
 @torch.no_grad()
 def render_all(avatar, clip, shadows, batch_size=8):
-    """Rendered rgb and alpha (F, H, W, C) of every fitted frame."""
+    """Rendered rgb and alpha (F, H, W, C) of every fitted frame; rgb is composited over the
+    clip's background plates (clip_data.background_plates), as a camera would have seen it."""
     rgb, alpha = [], []
     for start in range(0, len(clip.frames), batch_size):
         batch = torch.arange(start, min(start + batch_size, len(clip.frames)), device=clip.images.device)
         vertices, _ = avatar.posed(batch)
         images = render(vertices, avatar.mesh, clip.K, clip.height, clip.width, outputs=("rgb", "alpha"),
                         appearance=avatar.appearance(), light=avatar.light(shadows),
-                        background=torch.zeros(3, dtype=vertices.dtype, device=vertices.device))
+                        background=clip.backgrounds[batch].to(vertices.dtype))
         rgb.append(images["rgb"])
         alpha.append(images["alpha"])
     return torch.cat(rgb), torch.cat(alpha)
 
 
 def evaluate(rgb, alpha, clip):
-    """Per-frame silhouette IoU and, inside the mask, L1 and PSNR of the render over black (a
-    mask pixel the render misses counts in full); MS-SSIM on the masked frames. Also the PSNR of
-    the render composited over the input frame by its alpha (as fit_grid.png and overlay.mp4
-    show it), which measures the appearance where the render covers the hand."""
+    """Per-frame silhouette IoU and, inside the mask, L1 and PSNR of the render composited over
+    the background plate (render_all) against the frame; MS-SSIM on the masked frames.
+    A mask pixel the render misses shows the plate there and counts as an error; a silhouette
+    edge pixel blends hand and background as the photograph's does."""
     masks = clip.masks
     target = clip.images * masks
     composed = rgb * masks
-    overlaid = (rgb * alpha + clip.images * (1 - alpha)) * masks
     iou = metrics.silhouette_iou(alpha, masks)
     l1 = torch.stack([metrics.l1(composed[i:i + 1], target[i:i + 1], masks[i:i + 1]) for i in range(len(rgb))])
     psnr = torch.stack([metrics.psnr(composed[i:i + 1], target[i:i + 1], masks[i:i + 1]) for i in range(len(rgb))])
-    psnr_overlaid = torch.stack([metrics.psnr(overlaid[i:i + 1], target[i:i + 1], masks[i:i + 1])
-                                 for i in range(len(rgb))])
     result = {"silhouette_iou": iou.tolist(), "l1": l1.tolist(), "psnr": psnr.tolist(),
-              "psnr_over_input": psnr_overlaid.tolist(), "silhouette_iou_min": float(iou.min()),
-              "psnr_mean": float(psnr.mean()), "psnr_over_input_mean": float(psnr_overlaid.mean()),
-              "l1_mean": float(l1.mean())}
+              "silhouette_iou_min": float(iou.min()), "psnr_mean": float(psnr.mean()),
+              "psnr_min": float(psnr.min()), "l1_mean": float(l1.mean()),
+              "image_comparison": "render over the background plate, inside the mask"}
     if min(clip.height, clip.width) >= 176:
         ms = metrics.ms_ssim(composed.double(), target.double())
         result.update(ms_ssim=ms.tolist(), ms_ssim_mean=float(ms.mean()))
     return result
+
+
+def metrics_line(scores):
+    """One line of a fit's image figures (evaluate's result), for logs."""
+    iou = scores["silhouette_iou"]
+    return (f"silhouette IoU min {min(iou):.3f} (mean {sum(iou) / len(iou):.3f}), PSNR in the mask "
+            f"{scores['psnr_mean']:.1f} dB (min {scores['psnr_min']:.1f}), L1 {scores['l1_mean']:.4f}, "
+            f"MS-SSIM {scores.get('ms_ssim_mean', float('nan')):.3f}")
 
 
 def write_outputs(out, sequence, avatar, clip, settings, state, initial, perceptual_name):
@@ -68,8 +74,8 @@ def write_outputs(out, sequence, avatar, clip, settings, state, initial, percept
     rgb, alpha = render_all(avatar, clip, shadows)
     scores = evaluate(rgb, alpha, clip)
     _write_avatar(out, avatar, clip, settings, state, initial, perceptual_name, shadows)
-    _write_grid(out / GRID_FILE, clip, rgb, alpha)
-    _write_video(out / VIDEO_FILE, clip, rgb, alpha)
+    _write_grid(out / GRID_FILE, clip, rgb)
+    _write_video(out / VIDEO_FILE, clip, rgb)
     last = {}
     for entry in state["history"]:
         last[entry["stage"]] = entry
@@ -116,19 +122,18 @@ def _to_uint8(image):
     return (image.clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
 
 
-def _write_grid(path, clip, rgb, alpha, columns=6):
-    """Rows: input, render over the input's background, |difference| x4, for sampled frames."""
+def _write_grid(path, clip, rgb, columns=6):
+    """Rows: input, render over the background plate, |difference| x4, for sampled frames."""
     picks = np.unique(np.linspace(0, len(clip.frames) - 1, min(columns, len(clip.frames))).astype(int))
-    composite = rgb * alpha + clip.images * (1 - alpha)
-    rows = [clip.images[picks], composite[picks], ((composite - clip.images).abs() * 4)[picks]]
+    rows = [clip.images[picks], rgb[picks], ((rgb - clip.images).abs() * 4)[picks]]
     tiles = [np.concatenate(list(_to_uint8(row)), axis=1) for row in rows]
     cv2.imwrite(str(path), np.concatenate(tiles, axis=0)[:, :, ::-1])
 
 
-def _write_video(path, clip, rgb, alpha, fps=None):
-    """Input | render composited over the input, side by side (mp4)."""
+def _write_video(path, clip, rgb, fps=None):
+    """Input | render over the background plate, side by side (mp4)."""
     fps = fps or max(1.0, clip.info.fps * len(clip.frames) / max(clip.info.frame_count, 1))
-    composite = _to_uint8(rgb * alpha + clip.images * (1 - alpha))
+    composite = _to_uint8(rgb)
     inputs = _to_uint8(clip.images)
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (2 * clip.width, clip.height))
     for a, b in zip(inputs, composite):
