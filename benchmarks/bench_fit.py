@@ -57,7 +57,7 @@ def clip_copy(source, target, init_method="mediapipe"):
 def image_scores(metrics):
     iou = np.array(metrics["silhouette_iou"])
     return {"iou_min": float(iou.min()), "iou_mean": float(iou.mean()), "frames_iou_below_0.95": int((iou < 0.95).sum()),
-            "psnr_mean": metrics["psnr_mean"], "psnr_min": float(np.min(metrics["psnr"])), "l1_mean": metrics["l1_mean"],
+            "psnr_mean": metrics["psnr_mean"], "psnr_min": metrics["psnr_min"], "l1_mean": metrics["l1_mean"],
             "ms_ssim_mean": metrics.get("ms_ssim_mean")}
 
 
