@@ -31,9 +31,9 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from pipeline.demo import render_demo_clip, run_demo  # noqa: E402
-from pipeline.fit.evaluation import evaluate_fit  # noqa: E402
-from pipeline.fit.fitting import fit  # noqa: E402
-from pipeline.fit.initialisation import initialise_sequence  # noqa: E402
+from pipeline.evaluate import evaluate_fit  # noqa: E402
+from pipeline.fit import fit  # noqa: E402
+from pipeline.init import initialise_sequence  # noqa: E402
 
 SECTIONS = ("demo", "held_out", "pose", "sun", "perceptual")
 

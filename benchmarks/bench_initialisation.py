@@ -23,8 +23,9 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.fit.initial_fit import fit_initial_estimate  # noqa: E402
-from pipeline.fit.keypoint_detection import Keypoints2D, detect_sequence_keypoints  # noqa: E402
+from pipeline.init.initial_fit import fit_initial_estimate  # noqa: E402
+from pipeline.detection.mediapipe_hands import detect_sequence_keypoints  # noqa: E402
+from pipeline.formats.keypoint_file import Keypoints2D  # noqa: E402
 from pipeline.formats import sequence_folder as seq  # noqa: E402
 from pipeline.metrics import procrustes_error  # noqa: E402
 

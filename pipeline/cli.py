@@ -26,7 +26,7 @@ def _model_info(args):
 
 
 def _fit(args):
-    from .fit.fitting import fit
+    from .fit import fit
     from .fit.outputs import metrics_line
 
     report = fit(args.sequence, args.out, preset=args.preset, resume=args.resume, progress=args.progress,
@@ -35,7 +35,7 @@ def _fit(args):
 
 
 def _evaluate(args):
-    from .fit.evaluation import EVALUATION_FILE, evaluate_fit, summary_lines
+    from .evaluate import EVALUATION_FILE, evaluate_fit, summary_lines
 
     result = evaluate_fit(args.fit, args.sequence, held_out_steps=args.held_out_steps, device=args.device)
     for line in summary_lines(result):
@@ -52,7 +52,7 @@ def _import_video(args):
 
 
 def _init(args):
-    from .fit.initialisation import initialise_sequence
+    from .init import initialise_sequence
 
     method, *rest = args.init
     if len(rest) > 1:

@@ -43,9 +43,9 @@ def run_demo(out, progress="bar", log=print, max_steps=None, **clip_changes):
     """Render, initialise, fit and evaluate; returns a dict of the headline figures.
     `max_steps` and `clip_changes` shrink the job for tests."""
     from .avatar_render import render_avatar
-    from .fit.evaluation import evaluate_fit, summary_lines
-    from .fit.fitting import fit
-    from .fit.initialisation import initialise_sequence
+    from .evaluate import evaluate_fit, summary_lines
+    from .fit import fit
+    from .init import initialise_sequence
     from .fit.outputs import metrics_line
 
     out = Path(out)

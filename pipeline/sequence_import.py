@@ -300,7 +300,7 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
     if len(boxes) < MIN_FRAMES:
         raise ImportVideoError(f"not enough frames: {len(boxes)} with a hand in the mask, need at least {MIN_FRAMES}")
     if empty:
-        warn(f"warning: left out {len(empty)} frame(s) with an empty mask: {frame_ranges(empty)}")
+        warn(f"warning: left out {len(empty)} frame(s) with an empty mask: {seq.frame_ranges(empty)}")
     K_source, camera_note = source_intrinsics(width, height, K, fov_deg)
     stacked = np.array(list(boxes.values()))
     union = (stacked[:, 0].min(), stacked[:, 1].min(), stacked[:, 2].max(), stacked[:, 3].max())
@@ -325,7 +325,7 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
     if written != len(kept):
         raise ImportVideoError(f"the {frames.label} gave {written} frames on the second read, {len(kept)} on the first")
     if side == "auto":
-        from .fit.keypoint_detection import guess_hand_side
+        from .detection.mediapipe_hands import guess_hand_side
 
         sample = np.unique(np.linspace(0, written - 1, min(written, 10)).round().astype(int))
         side, votes = guess_hand_side(seq.read_rgb(seq.frame_path(out, info, i)) for i in sample)
@@ -342,15 +342,3 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
     log(f"wrote {written} frames ({size}x{size}, crop {side_px} px at ({x0}, {y0}) of {width}x{height}; "
         f"{camera_note}) to {out}")
     return info
-
-
-def frame_ranges(indices):
-    """"1-3, 7" for [1, 2, 3, 7]."""
-    parts, start = [], None
-    for i, value in enumerate(indices):
-        if start is None:
-            start = value
-        if i + 1 == len(indices) or indices[i + 1] != value + 1:
-            parts.append(str(start) if start == value else f"{start}-{value}")
-            start = None
-    return ", ".join(parts)

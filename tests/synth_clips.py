@@ -4,7 +4,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from pipeline.fit.initial_from_ground_truth import ground_truth_with_noise
+from pipeline.init.initial_from_ground_truth import ground_truth_with_noise
 from pipeline.formats import sequence_folder as seq
 from pipeline.formats.initial_estimate import write_initial_estimate
 

@@ -19,7 +19,7 @@ import pytest
 
 from exact_clips import write_clip
 from pipeline.cli import main
-from pipeline.fit.initialisation import initialise_sequence
+from pipeline.init import initialise_sequence
 from pipeline.formats import initial_estimate as ie
 from pipeline.formats import sequence_folder as seq
 from pipeline.formats.camera import project

@@ -9,9 +9,11 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from synth_clips import render_tiny_clip
-from pipeline.fit import evaluation, fitting
-from pipeline.fit.held_out import held_out_frames
-from pipeline.fit.initial_from_ground_truth import compose_axis_angle
+from pipeline.evaluate import albedo, evaluation, held_out, poses
+from pipeline.fit import fitting, stage_run
+from pipeline.fit.checkpoint import CHECKPOINT_FILE, load_checkpoint, save_checkpoint
+from pipeline.fit.frames import held_out_frames, select_frames
+from pipeline.init.initial_from_ground_truth import compose_axis_angle
 from pipeline.formats import avatar_folder as av
 from pipeline.formats import sequence_folder as seq
 from pipeline.formats.initial_estimate import read_initial_estimate
@@ -53,23 +55,23 @@ def test_held_out_frames_are_every_nth_and_never_fitted():
     assert held_out_frames(10, None).tolist() == []
     with pytest.raises(ValueError):
         held_out_frames(10, 1)
-    frames = fitting.select_frames(100, 30, exclude=held_out_frames(100, 4))
+    frames = select_frames(100, 30, exclude=held_out_frames(100, 4))
     assert len(frames) == 30 and not set(frames) & set(held_out_frames(100, 4))
-    assert fitting.select_frames(100, 30).tolist() == np.unique(np.round(np.linspace(0, 99, 30)).astype(int)).tolist()
+    assert select_frames(100, 30).tolist() == np.unique(np.round(np.linspace(0, 99, 30)).astype(int)).tolist()
 
 
 def test_held_out_evaluation_fits_pose_and_light_only(held_out_fit, tiny_clip, monkeypatch):
     out, report = held_out_fit
     assert report["held_out_frames"] == [2, 5] and report["frames"] == [0, 1, 3, 4]
     assert json.loads((out / "report.json").read_text())["held_out_frames"] == [2, 5]
-    saved = torch.load(out / fitting.CHECKPOINT_FILE, weights_only=False)
-    result = evaluation.evaluate_held_out(out, tiny_clip, steps=8, device="cpu")
-    for name in evaluation.FROZEN:                       # shape and appearance: bit for bit the fit's
-        assert torch.equal(getattr(result.avatar, name).detach(), saved["avatar"][name]), name
+    saved = load_checkpoint(out / CHECKPOINT_FILE)
+    result = held_out.evaluate_held_out(out, tiny_clip, steps=8, device="cpu")
+    for name in held_out.FROZEN:                         # shape and appearance: bit for bit the fit's
+        assert torch.equal(getattr(result.avatar, name).detach(), saved.avatar[name]), name
     initial = read_initial_estimate(tiny_clip)
     moved = np.abs(result.avatar.pose.detach().numpy() - initial.pose[[2, 5]]).max()
     assert moved > 1e-5
-    assert not torch.equal(result.avatar.light_position.detach(), saved["avatar"]["light_position"])
+    assert not torch.equal(result.avatar.light_position.detach(), saved.avatar["light_position"])
     assert result.loss_after < result.loss_before and len(result.history) == 8
     assert result.history[0]["loss"] == pytest.approx(result.loss_before, rel=1e-5)
     scores = result.metrics
@@ -78,12 +80,12 @@ def test_held_out_evaluation_fits_pose_and_light_only(held_out_fit, tiny_clip, m
     # the shadows decision of the fit is respected
     shadowed = out.parent / "shadowed"
     shutil.copytree(out, shadowed)
-    saved["state"]["shadows"]["on"] = True
-    torch.save(saved, shadowed / fitting.CHECKPOINT_FILE)
+    saved.state.shadows.on = True
+    save_checkpoint(shadowed / CHECKPOINT_FILE, saved)
     seen = []
-    original = evaluation.batch_energy
-    monkeypatch.setattr(evaluation, "batch_energy", lambda *args: seen.append(args[11]) or original(*args))
-    assert evaluation.evaluate_held_out(shadowed, tiny_clip, steps=1, device="cpu").shadows is True
+    original = stage_run.batch_energy
+    monkeypatch.setattr(stage_run, "batch_energy", lambda *args: seen.append(args[3]) or original(*args))
+    assert held_out.evaluate_held_out(shadowed, tiny_clip, steps=1, device="cpu").shadows is True
     assert seen and all(seen)
 
 
@@ -93,14 +95,14 @@ def test_albedo_error_of_known_differences():
     rng = np.random.default_rng(0)
     truth = rng.uniform(0.2, 0.8, (32, 32, 3))
     visible = rng.uniform(size=(32, 32)) < 0.5
-    same = evaluation.albedo_error(truth, truth, visible)
+    same = albedo.albedo_error(truth, truth, visible)
     assert same["mae"] == 0 and same["mae_scaled"] == 0 and same["texels"] == visible.sum()
-    shifted = evaluation.albedo_error(truth + 0.05, truth, visible)
+    shifted = albedo.albedo_error(truth + 0.05, truth, visible)
     assert shifted["mae"] == pytest.approx(0.05) and shifted["psnr"] == pytest.approx(20 * np.log10(1 / 0.05))
     scales = np.array([0.8, 1.0, 1.25])
     darker = truth * scales
     darker[~visible] = 0.0                               # what is not seen does not count
-    scaled = evaluation.albedo_error(darker, truth, visible)
+    scaled = albedo.albedo_error(darker, truth, visible)
     assert scaled["mae"] == pytest.approx(np.abs(truth * scales - truth)[visible].mean())
     assert scaled["mae_scaled"] < 1e-12 and np.allclose(scaled["scale"], 1 / scales)
 
@@ -112,16 +114,16 @@ def test_visible_texels_are_part_of_the_uv_area(tiny_clip):
     mesh = RenderMesh.from_model_data(data)
     in_atlas = atlas_mask(data.uvs, data.faces_uv, 128)
     vertices = torch.as_tensor(gt.vertices)
-    visible = evaluation.visible_texels(vertices, mesh, info.K, info.height, info.width, 128)
+    visible = albedo.visible_texels(vertices, mesh, info.K, info.height, info.width, 128)
     assert visible.any() and visible.sum() < in_atlas.sum()
     assert in_atlas[visible].mean() > 0.97               # the nearest texel of a UV inside a chart
-    first = evaluation.visible_texels(vertices[:1], mesh, info.K, info.height, info.width, 128)
+    first = albedo.visible_texels(vertices[:1], mesh, info.K, info.height, info.width, 128)
     assert (visible | first).sum() == visible.sum() and first.sum() < visible.sum()
     # the hand turned half around about its centre shows mostly other texels
     centre = vertices[0].mean(0)
     turned = (vertices[0] - centre) @ torch.as_tensor(Rotation.from_euler("y", 180, degrees=True).as_matrix().T,
                                                       dtype=vertices.dtype) + centre
-    back = evaluation.visible_texels(turned[None], mesh, info.K, info.height, info.width, 128)
+    back = albedo.visible_texels(turned[None], mesh, info.K, info.height, info.width, 128)
     assert (first & back).sum() < 0.1 * min(first.sum(), back.sum())
 
 
@@ -131,18 +133,18 @@ def test_albedo_error_of_a_fit_folder(held_out_fit, tiny_clip, tmp_path):
     shutil.copytree(out, folder)
     truth = seq.read_rgb(tiny_clip / seq.GT_ALBEDO_FILE)
     seq.write_png(folder / av.ALBEDO_FILE, truth)
-    same = evaluation.evaluate_albedo(folder, tiny_clip, device="cpu")
+    same = albedo.evaluate_albedo(folder, tiny_clip, device="cpu")
     assert same["mae"] == 0 and same["mae_scaled"] < 1e-12 and same["texture_size"] == 128
-    assert (folder / evaluation.ALBEDO_PICTURE).is_file()
+    assert (folder / albedo.ALBEDO_PICTURE).is_file()
     assert 0.1 < same["visible_fraction_of_uv_area"] < 1 and same["visibility_from"] == "gt.npz vertices"
     darker = truth.astype(int) - 10
     assert darker.min() >= 0                           # no clipping: the error is ten levels everywhere
     seq.write_png(folder / av.ALBEDO_FILE, darker.astype(np.uint8))
-    shifted = evaluation.evaluate_albedo(folder, tiny_clip, device="cpu", picture=False)
+    shifted = albedo.evaluate_albedo(folder, tiny_clip, device="cpu", picture=False)
     assert shifted["mae"] == pytest.approx(10 / 255) and shifted["psnr"] == pytest.approx(20 * np.log10(25.5))
     assert shifted["texels"] == same["texels"]
     # the fit's own albedo (64 texels) is compared against the truth resized to 64
-    fitted = evaluation.evaluate_albedo(out, tiny_clip, device="cpu", picture=False)
+    fitted = albedo.evaluate_albedo(out, tiny_clip, device="cpu", picture=False)
     assert fitted["texture_size"] == 64 and np.isfinite(fitted["psnr"]) and fitted["mae"] < 0.5
 
 
@@ -151,14 +153,14 @@ def test_albedo_error_of_a_fit_folder(held_out_fit, tiny_clip, tmp_path):
 def test_pose_error_of_the_truth_and_of_known_offsets(tiny_clip):
     gt = seq.read_ground_truth(tiny_clip / seq.GT_FILE)
     model = HandModel.load(gt.mode, gt.side, dtype=torch.float64)
-    joints, _ = evaluation._hand(model, gt.betas, gt.pose, gt.global_orient, gt.transl)
-    same = evaluation.point_errors(joints, gt.keypoints3d)
+    joints, _ = poses._hand(model, gt.betas, gt.pose, gt.global_orient, gt.transl)
+    same = poses.point_errors(joints, gt.keypoints3d)
     assert same["procrustes_mm_mean"] < 1e-3 and same["camera_mm_mean"] < 1e-3
     # the whole hand turned by 20 degrees about its wrist: nothing left after alignment
     offset = Rotation.from_rotvec([0.0, np.radians(20), 0.0])
     turned = compose_axis_angle(np.repeat(offset.as_rotvec()[None], gt.frame_count, 0), gt.global_orient)
-    joints, _ = evaluation._hand(model, gt.betas, gt.pose, turned, gt.transl)
-    errors = evaluation.point_errors(joints, gt.keypoints3d)
+    joints, _ = poses._hand(model, gt.betas, gt.pose, turned, gt.transl)
+    errors = poses.point_errors(joints, gt.keypoints3d)
     relative = gt.keypoints3d - gt.transl[:, None]
     expected = np.linalg.norm(offset.apply(relative.reshape(-1, 3)).reshape(relative.shape) - relative, axis=-1)
     assert errors["procrustes_mm_mean"] < 1e-3
@@ -166,8 +168,8 @@ def test_pose_error_of_the_truth_and_of_known_offsets(tiny_clip):
     # the index finger bent 30 degrees more at its PIP joint
     pose = gt.pose.copy()
     pose[:, 2] = compose_axis_angle(pose[:, 2], np.repeat([[np.radians(30), 0, 0]], gt.frame_count, 0))
-    joints, _ = evaluation._hand(model, gt.betas, pose, gt.global_orient, gt.transl)
-    errors = evaluation.point_errors(joints, gt.keypoints3d)
+    joints, _ = poses._hand(model, gt.betas, pose, gt.global_orient, gt.transl)
+    errors = poses.point_errors(joints, gt.keypoints3d)
     expected = [_procrustes_numpy(p, t) * 1000 for p, t in zip(joints.numpy(), gt.keypoints3d)]
     assert errors["procrustes_mm"] == pytest.approx(expected, rel=1e-6) and min(expected) > 1
 
@@ -177,7 +179,7 @@ def test_pose_errors_of_a_fit(held_out_fit, tiny_clip, tmp_path):
     gt = seq.read_ground_truth(tiny_clip / seq.GT_FILE)
     initial = read_initial_estimate(tiny_clip)
     frames = report["frames"]
-    result = evaluation.evaluate_poses(out, tiny_clip, device="cpu")
+    result = poses.evaluate_poses(out, tiny_clip, device="cpu")
     assert result["frames"] == frames and result["gt_keypoint_check_mm"] < 1e-3
     expected = [_procrustes_numpy(p, t) * 1000 for p, t in zip(initial.keypoints3d[frames], gt.keypoints3d[frames])]
     assert result["initial"]["joints"]["procrustes_mm"] == pytest.approx(expected, rel=1e-5)
@@ -187,13 +189,13 @@ def test_pose_errors_of_a_fit(held_out_fit, tiny_clip, tmp_path):
     # the person's own surface offsets, which the plain model lacks
     truth_fit = tmp_path / "truth"
     shutil.copytree(out, truth_fit)
-    saved = torch.load(out / fitting.CHECKPOINT_FILE, weights_only=False)
+    saved = load_checkpoint(out / CHECKPOINT_FILE)
     for name in ("betas", "global_orient", "transl", "pose"):
         value = getattr(gt, name)[frames] if name != "betas" else gt.betas
-        saved["avatar"][name] = torch.as_tensor(value, dtype=torch.float32)
-    saved["avatar"]["displacement"].zero_()
-    torch.save(saved, truth_fit / fitting.CHECKPOINT_FILE)
-    perfect = evaluation.evaluate_poses(truth_fit, tiny_clip, device="cpu")["fit"]
+        saved.avatar[name] = torch.as_tensor(value, dtype=torch.float32)
+    saved.avatar["displacement"].zero_()
+    save_checkpoint(truth_fit / CHECKPOINT_FILE, saved)
+    perfect = poses.evaluate_poses(truth_fit, tiny_clip, device="cpu")["fit"]
     assert perfect["joints"]["procrustes_mm_mean"] < 0.01 and perfect["joints"]["camera_mm_mean"] < 0.01
     assert perfect["vertices"]["procrustes_mm_mean"] < 0.01
     offsets = np.linalg.norm(gt.personal_offsets, axis=1).mean() * 1000
@@ -213,6 +215,6 @@ def test_harp_evaluate_writes_evaluation_json(held_out_fit, tiny_clip, capsys):
     result = json.loads((out / evaluation.EVALUATION_FILE).read_text())
     assert set(result) >= {"held_out", "albedo", "poses", "fit_frames"}
     assert result["held_out"]["frames"] == [2, 5] and result["poses"]["held_out"]["frames"] == [2, 5]
-    assert (out / evaluation.ALBEDO_PICTURE).is_file()
+    assert (out / albedo.ALBEDO_PICTURE).is_file()
     assert main(["evaluate", str(out.parent / "missing"), str(tiny_clip)]) == 1
     assert "not a finished fit" in capsys.readouterr().err

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from pipeline.fit.clip_data import ClipData, background_plates, harmonic_fill
-from pipeline.fit.outputs import evaluate
+from pipeline.fit.outputs import image_scores
 
 SIZE, RADIUS = 48, 13.0
 HAND = np.array([0.85, 0.62, 0.55])
@@ -70,7 +70,7 @@ def test_a_render_that_matches_the_photograph_scores_near_perfect():
     clip, coverage = _clip(_background("ramp"))
     plate = clip.backgrounds[0].numpy()
     rgb = HAND * coverage + plate * (1 - coverage)    # the renderer's composite over the plate
-    scores = evaluate(torch.tensor(rgb[None]), torch.tensor(coverage[None]), clip)
+    scores = image_scores(torch.tensor(rgb[None]), torch.tensor(coverage[None]), clip)
     assert scores["silhouette_iou"][0] == pytest.approx(1.0)
     assert scores["psnr"][0] > 40 and scores["l1"][0] < 0.01
 
@@ -84,7 +84,7 @@ def test_hand_pixels_the_render_misses_count_in_full():
     missed[:, : SIZE // 2 - 2] = 1
     alpha = coverage * (1 - missed)
     rgb = HAND * alpha + clip.backgrounds[0].numpy() * (1 - alpha)
-    scores = evaluate(torch.tensor(rgb[None]), torch.tensor(alpha[None]), clip)
+    scores = image_scores(torch.tensor(rgb[None]), torch.tensor(alpha[None]), clip)
     mask = clip.masks[0, ..., 0].numpy() > 0
     # a missed pixel shows the background where the photograph shows coverage * (hand - background) more
     per_pixel = ((coverage * missed * (HAND - background)) ** 2).mean(-1)

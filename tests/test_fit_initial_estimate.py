@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.fit.initial_from_ground_truth import compose_axis_angle, ground_truth_with_noise
+from pipeline.init.initial_from_ground_truth import compose_axis_angle, ground_truth_with_noise
 from pipeline.formats import initial_estimate as ie
 from pipeline.formats.sequence_folder import GroundTruth
 from pipeline.handmodel.lbs import HandModel

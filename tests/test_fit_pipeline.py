@@ -6,7 +6,8 @@ import pytest
 import torch
 
 from synth_clips import ROOT, render_tiny_clip
-from pipeline.fit import fitting
+from pipeline.fit import fitting, stage_run
+from pipeline.fit.checkpoint import CHECKPOINT_FILE, load_checkpoint
 from pipeline.formats import avatar_folder as av
 from pipeline.formats import hand_model_file as fmt
 
@@ -45,7 +46,7 @@ def test_interrupt_then_resume_reaches_the_same_result(tiny_clip, tmp_path, monk
 
     options = dict(progress="none", max_steps=6, texture_size=64, batch_size=2, resolution=96)
     reference = fitting.fit(tiny_clip, tmp_path / "reference", **options)
-    original = fitting.batch_energy
+    original = stage_run.batch_energy
     calls = {"count": 0}
 
     def interrupting(*args, **kwargs):
@@ -54,13 +55,13 @@ def test_interrupt_then_resume_reaches_the_same_result(tiny_clip, tmp_path, monk
             os.kill(os.getpid(), signal.SIGINT)
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(fitting, "batch_energy", interrupting)
+    monkeypatch.setattr(stage_run, "batch_energy", interrupting)
     out = tmp_path / "interrupted"
     with pytest.raises(KeyboardInterrupt):
         fitting.fit(tiny_clip, out, **options)
-    saved = torch.load(out / fitting.CHECKPOINT_FILE, weights_only=False)
-    assert saved["state"]["stage"] == 1 and 0 < saved["state"]["step"] < 6
-    monkeypatch.setattr(fitting, "batch_energy", original)
+    saved = load_checkpoint(out / CHECKPOINT_FILE)
+    assert saved.state.stage == 1 and 0 < saved.state.step < 6
+    monkeypatch.setattr(stage_run, "batch_energy", original)
     resumed = fitting.fit(tiny_clip, out, resume=True, **options)
     final = lambda report: report["final_losses"]["appearance"]["loss"]  # noqa: E731
     assert final(resumed) == pytest.approx(final(reference), rel=0.01)
@@ -82,23 +83,23 @@ def test_killed_fit_resumes_from_its_last_checkpoint(tiny_clip, tmp_path):
     child = subprocess.Popen([sys.executable, "-c", f"""
 import sys, time
 sys.path.insert(0, {str(ROOT)!r})
-from pipeline.fit import fitting
-original = fitting.batch_energy
+from pipeline.fit import fitting, stage_run
+original = stage_run.batch_energy
 def slowed(*args, **kwargs):
     time.sleep(0.1)
     return original(*args, **kwargs)
-fitting.batch_energy = slowed
+stage_run.batch_energy = slowed
 fitting.fit({str(tiny_clip)!r}, {str(out)!r}, **{options!r})
 """], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    checkpoint = out / fitting.CHECKPOINT_FILE
+    checkpoint = out / CHECKPOINT_FILE
     deadline = time.time() + 240
     while not checkpoint.is_file() and child.poll() is None and time.time() < deadline:
         time.sleep(0.02)
     assert child.poll() is None, child.stderr.read().decode()    # still fitting: the kill is real
     child.kill()
     child.wait()
-    saved = torch.load(checkpoint, weights_only=False)
-    assert saved["state"]["stage"] == 1 and saved["state"]["step"] == 0   # the alignment's end
+    saved = load_checkpoint(checkpoint)
+    assert saved.state.stage == 1 and saved.state.step == 0   # the alignment's end
     resumed = fitting.fit(tiny_clip, out, resume=True, **options)
     final = lambda report: report["final_losses"]["appearance"]["loss"]  # noqa: E731
     assert final(resumed) == pytest.approx(final(reference), rel=0.01)
@@ -115,7 +116,7 @@ def test_non_finite_loss_rolls_back(tiny_clip, tmp_path, monkeypatch):
         calls["count"] += 1
         return (loss * float("nan"), terms) if calls["count"] == 2 else (loss, terms)
 
-    monkeypatch.setattr(fitting, "batch_energy", sometimes_nan)
+    monkeypatch.setattr(stage_run, "batch_energy", sometimes_nan)
     report = fitting.fit(tiny_clip, tmp_path / "avatar", progress="none", max_steps=3, texture_size=64,
                          batch_size=2, resolution=96)
     assert any("rolled back" in event for event in report["events"])
@@ -156,7 +157,7 @@ def test_alignment_in_chunks_equals_one_batch(tiny_clip, tmp_path, monkeypatch):
     """A long clip's alignment step renders its frames in chunks: the same step as one batch."""
     options = dict(progress="none", max_steps=3, texture_size=64, resolution=96, steps=(0, 0, 0))
     whole = fitting.fit(tiny_clip, tmp_path / "whole", **options)
-    monkeypatch.setattr(fitting, "ALIGN_CHUNK_FRAMES", 1)
+    monkeypatch.setattr(stage_run, "ALIGN_CHUNK_FRAMES", 1)
     chunked = fitting.fit(tiny_clip, tmp_path / "chunked", **options)
     assert whole["final_losses"]["align"]["loss"] == pytest.approx(chunked["final_losses"]["align"]["loss"], rel=1e-4)
     first, second = (av.read_poses(tmp_path / name) for name in ("whole", "chunked"))

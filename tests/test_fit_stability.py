@@ -17,7 +17,7 @@ import torch
 from exact_clips import fraction_outside, write_clip
 from pipeline import metrics
 from pipeline.fit import fitting
-from pipeline.fit.initialisation import initialise_sequence
+from pipeline.init import initialise_sequence
 from pipeline.fit.settings import WEIGHTS, settings_for
 from pipeline.formats import avatar_folder as av
 from pipeline.formats import sequence_folder as seq

@@ -10,9 +10,10 @@ import pytest
 import torch
 
 from pipeline.cli import main
-from pipeline.fit import initial_fit as fit
-from pipeline.fit import keypoint_detection as kd
-from pipeline.fit.initialisation import forearm_fraction
+from pipeline.detection import mediapipe_hands
+from pipeline.formats import keypoint_file as kf
+from pipeline.init import initial_fit as fit
+from pipeline.init.initialisation import forearm_fraction
 from pipeline.formats import initial_estimate as ie
 from pipeline.formats import sequence_folder as seq
 from pipeline.formats.camera import project
@@ -91,7 +92,7 @@ def test_translation_and_rotation_solvers_are_exact():
 def test_fit_to_exact_keypoints_recovers_the_hand(model):
     betas, pose, orient, transl, keypoints, pixels = synthetic_hands(model)
     frames = len(pixels)
-    exact = kd.Keypoints2D(points=pixels, detected=np.ones(frames, bool), score=np.ones(frames), source="keypoints")
+    exact = kf.Keypoints2D(points=pixels, detected=np.ones(frames, bool), score=np.ones(frames), source="keypoints")
     estimate = fit.fit_initial_estimate(exact, K, mode="hand", model=model)
     estimate.validate()
     hand_px = np.linalg.norm(pixels.max(1) - pixels.min(1), axis=-1).mean()
@@ -108,11 +109,11 @@ def test_fit_to_exact_keypoints_recovers_the_hand(model):
 def test_interpolation_over_missing_frames():
     values = np.array([[0.0], [0.0], [2.0], [0.0], [6.0], [0.0]])
     detected = np.array([False, True, False, True, True, False])
-    np.testing.assert_allclose(kd.interpolate_missing(values, detected)[:, 0], [0, 0, 0, 0, 6, 6])
+    np.testing.assert_allclose(kf.interpolate_missing(values, detected)[:, 0], [0, 0, 0, 0, 6, 6])
     values[3] = 4.0
-    np.testing.assert_allclose(kd.interpolate_missing(values, detected)[:, 0], [0, 0, 2, 4, 6, 6])
-    with pytest.raises(kd.KeypointError, match="no frame"):
-        kd.interpolate_missing(values, np.zeros(6, bool))
+    np.testing.assert_allclose(kf.interpolate_missing(values, detected)[:, 0], [0, 0, 2, 4, 6, 6])
+    with pytest.raises(kf.KeypointError, match="no frame"):
+        kf.interpolate_missing(values, np.zeros(6, bool))
 
 
 def test_keypoint_files(tmp_path):
@@ -123,36 +124,36 @@ def test_keypoint_files(tmp_path):
     frames[2] = None
     (tmp_path / "k.json").write_text(json.dumps({"format": "harp-keypoints", "version": 1, "keypoints": frames}))
     for name in ("k.npy", "k.npz"):
-        read = kd.read_keypoint_file(tmp_path / name, 5, 256, 256)
+        read = kf.read_keypoint_file(tmp_path / name, 5, 256, 256)
         np.testing.assert_array_equal(read.points, points)
         assert read.detected.all()
-    assert np.all(kd.read_keypoint_file(tmp_path / "k.npz", 5, 256, 256).score == 0.7)
-    read = kd.read_keypoint_file(tmp_path / "k.json", 5, 256, 256)
+    assert np.all(kf.read_keypoint_file(tmp_path / "k.npz", 5, 256, 256).score == 0.7)
+    read = kf.read_keypoint_file(tmp_path / "k.json", 5, 256, 256)
     assert read.detected.tolist() == [True, True, False, True, True]
     np.testing.assert_allclose(read.points[2], (points[1] + points[3]) / 2)
-    again = kd.read_keypoint_file(kd.write_keypoint_file(tmp_path / "again.json", read), 5, 256, 256)
+    again = kf.read_keypoint_file(kf.write_keypoint_file(tmp_path / "again.json", read), 5, 256, 256)
     np.testing.assert_allclose(again.points[read.detected], points[read.detected], atol=1e-3)
 
-    with pytest.raises(kd.KeypointError, match="for 5 frames, the sequence has 6"):
-        kd.read_keypoint_file(tmp_path / "k.npy", 6, 256, 256)
+    with pytest.raises(kf.KeypointError, match="for 5 frames, the sequence has 6"):
+        kf.read_keypoint_file(tmp_path / "k.npy", 6, 256, 256)
     np.save(tmp_path / "normalised.npy", points / 256)
-    with pytest.raises(kd.KeypointError, match="look normalised"):
-        kd.read_keypoint_file(tmp_path / "normalised.npy", 5, 256, 256)
+    with pytest.raises(kf.KeypointError, match="look normalised"):
+        kf.read_keypoint_file(tmp_path / "normalised.npy", 5, 256, 256)
     np.save(tmp_path / "shape.npy", points[:, :20])
-    with pytest.raises(kd.KeypointError, match=r"expected \(5, 21, 2\)"):
-        kd.read_keypoint_file(tmp_path / "shape.npy", 5, 256, 256)
+    with pytest.raises(kf.KeypointError, match=r"expected \(5, 21, 2\)"):
+        kf.read_keypoint_file(tmp_path / "shape.npy", 5, 256, 256)
     (tmp_path / "bad.json").write_text("{not json")
-    with pytest.raises(kd.KeypointError, match="cannot read"):
-        kd.read_keypoint_file(tmp_path / "bad.json", 5, 256, 256)
-    with pytest.raises(kd.KeypointError, match="not found"):
-        kd.read_keypoint_file(tmp_path / "missing.npy", 5, 256, 256)
+    with pytest.raises(kf.KeypointError, match="cannot read"):
+        kf.read_keypoint_file(tmp_path / "bad.json", 5, 256, 256)
+    with pytest.raises(kf.KeypointError, match="not found"):
+        kf.read_keypoint_file(tmp_path / "missing.npy", 5, 256, 256)
 
 
 # --- MediaPipe on synthetic renders -----------------------------------------------------------
 def test_mediapipe_on_a_rendered_right_hand(right_clip):
     info = seq.read_sequence_info(right_clip)
     gt = seq.read_ground_truth(right_clip / seq.GT_FILE)
-    keypoints = kd.detect_sequence_keypoints(right_clip, info)
+    keypoints = mediapipe_hands.detect_sequence_keypoints(right_clip, info)
     assert keypoints.detected.mean() >= 0.5
     error = np.linalg.norm(keypoints.points - gt.keypoints2d, axis=-1).mean(-1)[keypoints.detected]
     assert np.median(error) < 0.05 * info.width, error   # measured about 6 px at 256 (docs)
@@ -163,7 +164,7 @@ def test_mediapipe_on_a_rendered_right_hand(right_clip):
 
 
 def test_mediapipe_calls_a_left_hand_right(left_clip):
-    side, votes = kd.guess_hand_side(seq.read_rgb(p) for p in sorted((left_clip / "rgb").glob("*.png")))
+    side, votes = mediapipe_hands.guess_hand_side(seq.read_rgb(p) for p in sorted((left_clip / "rgb").glob("*.png")))
     assert side == "left" and votes["left"] > votes["right"], votes
 
 

@@ -16,7 +16,12 @@ from ..render.shading import vertex_normals
 
 SKIN_RGB = (232 / 255, 190 / 255, 172 / 255)
 INITIAL_AMBIENT = 0.6
-APPEARANCE = ("albedo", "normal_map", "light_position", "ambient_logit")
+# the avatar's parameters by kind
+PER_FRAME = ("global_orient", "transl", "pose")
+SHAPE = ("betas", "displacement")
+TEXTURES = ("albedo", "normal_map")
+LIGHT = ("light_position", "ambient_logit")
+APPEARANCE = TEXTURES + LIGHT
 
 
 class Avatar(torch.nn.Module):

@@ -6,12 +6,14 @@ import torch
 from ..handmodel.rotations import axis_angle_to_matrix
 from ..render.renderer import render
 from . import losses
+from .problem import FitProblem
+from .settings import Stage
 
 
-def batch_energy(avatar, clip, batch, settings, stage, initial_keypoints, rest_reference, edges, face_pairs,
-                 perceptual, uv_mask, shadows, generator):
-    """(total loss, {term: value}) for frames `batch` (indices into the fit's frames)."""
-    weights = settings.weights
+def batch_energy(problem: FitProblem, stage: Stage, batch, shadows, generator):
+    """(total loss, {term: value}) for frames `batch` (indices into the problem's frames) in
+    `stage`, self-shadowing on or off; `generator` draws the texture regularisers' offsets."""
+    avatar, clip, weights = problem.avatar, problem.clip, problem.settings.weights
     vertices, keypoints = avatar.posed_coarse(batch) if stage.coarse else avatar.posed(batch)
     outputs = ("alpha", "rgb") if stage.appearance else ("alpha",)
     mesh = avatar.coarse_mesh if stage.coarse else avatar.mesh
@@ -29,23 +31,24 @@ def batch_energy(avatar, clip, batch, settings, stage, initial_keypoints, rest_r
 
     if stage.geometry:
         add("silhouette", lambda: losses.silhouette_loss(images["alpha"], masks))
-        add("keypoint_anchor", lambda: losses.keypoint_anchor_loss(keypoints[:, :21], initial_keypoints[batch]))
+        add("keypoint_anchor", lambda: losses.keypoint_anchor_loss(keypoints[:, :21], problem.anchor_keypoints[batch]))
         # over every frame (no rendering involved): the batch's frames feel their neighbours
         add("temporal_pose", lambda: losses.temporal_pose_loss(avatar.pose * avatar.pose_mask, avatar.frame_numbers))
         add("temporal_global", lambda: losses.temporal_global_loss(axis_angle_to_matrix(avatar.global_orient),
                                                                    avatar.transl, avatar.frame_numbers))
     if stage.geometry and not stage.coarse:
         add("displacement", lambda: losses.displacement_loss(avatar.displacement))
-        add("laplacian", lambda: losses.laplacian_loss(vertices, edges))
-        add("normal_consistency", lambda: losses.normal_consistency_loss(vertices, avatar.mesh.faces, face_pairs))
-        add("edge_length", lambda: losses.edge_length_loss(vertices, rest_reference[batch], edges))
+        add("laplacian", lambda: losses.laplacian_loss(vertices, problem.edges))
+        add("normal_consistency", lambda: losses.normal_consistency_loss(vertices, avatar.mesh.faces,
+                                                                         problem.face_pairs))
+        add("edge_length", lambda: losses.edge_length_loss(vertices, problem.reference_vertices[batch], problem.edges))
     if stage.appearance:
         rendered = images["rgb"]
         target = frames * masks
         add("photometric", lambda: losses.photometric_loss(rendered, target, masks))
-        add("perceptual", lambda: perceptual(rendered * masks, target, masks))
-        add("texture", lambda: losses.texture_smoothness_loss(avatar.albedo, uv_mask, generator))
+        add("perceptual", lambda: problem.perceptual(rendered * masks, target, masks))
+        add("texture", lambda: losses.texture_smoothness_loss(avatar.albedo, problem.uv_mask, generator))
         add("normal_map", lambda: losses.normal_map_loss(torch.nn.functional.normalize(avatar.normal_map, dim=0),
-                                                         uv_mask, generator))
+                                                         problem.uv_mask, generator))
     total = sum((weights[name] * value for name, value in terms.items()), vertices.new_zeros(()))
     return total, {name: float(value.detach()) for name, value in terms.items()}

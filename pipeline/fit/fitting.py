@@ -1,94 +1,97 @@
-"""The fit: three stages of Adam over the avatar (appendix C.3), with checkpoints, resume,
-rollback on non-finite losses, progress and the scene adaptations (mode, shadows, frames).
+"""`harp fit`: the stages of Adam over the avatar (appendix C.3, with our alignment first), with
+checkpoints, resume, progress, observers (the anytime curve) and the scene adaptations (mode,
+shadows, frames).
 
-Only this module knows about stages; the energy terms are plain functions (losses.py).
+Only this module knows the order of stages; a stage's steps are stage_run.py's, the energy is
+energy.py's, the problem (clip, avatar, fixed data) is built once in problem.py.
 """
 from __future__ import annotations
 
-import copy
-import json
+import contextlib
+import dataclasses
 import signal
-import sys
+import threading
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from ..formats.initial_estimate import read_initial_estimate
 from ..formats.sequence_folder import validate_sequence_folder
-from ..handmodel.lbs import HandModel
-from ..handmodel.uv_atlas import uv_mask as atlas_mask
-from ..render.antialias import edge_topology
-from .avatar import APPEARANCE, Avatar
-from .clip_data import load_clip
-from .energy import batch_energy
-from .held_out import held_out_frames, record_held_out
-from .perceptual import perceptual_term
+from .avatar import APPEARANCE, SHAPE
+from .checkpoint import CHECKPOINT_FILE, Checkpoint, FitState, load_checkpoint, save_checkpoint
+from .frames import held_out_frames, select_frames
+from .outputs import write_outputs
+from .problem import FitError, FitProblem, build_problem
+from .progress import Progress
 from .settings import settings_for
+from .stage_run import StageRun, parameter_groups
 
-CHECKPOINT_FILE = "checkpoint.pt"
 SHADOW_AMBIENT_THRESHOLD = 0.75   # a fitted ambient ratio below this means a dominant light
-ROLLBACK_EVERY = 20
-ALIGN_CHUNK_FRAMES = 32   # frames rendered at once in the alignment's full batches
-DIVERGENCE_FACTOR = 1.5   # a full-batch loss this much above the best so far counts as divergence
+KNOWN_APPEARANCE = SHAPE + APPEARANCE   # what a fit with known appearance takes from another fit, frozen
+
+__all__ = ["fit", "FitError", "FitObserver", "CHECKPOINT_FILE"]
 
 
-class FitError(ValueError):
-    """The fit cannot start or continue (one-line message)."""
+class FitObserver:
+    """Watches a fit (e.g. the anytime curve, evaluate/curve.py): called at the start, after
+    every step and at the end, with the problem and the state. The time it takes is not
+    counted as fitting time (FitState.measure_seconds)."""
 
+    def start(self, problem: FitProblem, state: FitState):
+        pass
 
-def select_frames(count, maximum, exclude=()):
-    """Evenly spaced frame indices (all of them when the clip is short enough): an even spread
-    over time keeps the clip's coverage of views for flipping and turning motions. Frames in
-    `exclude` (held out for evaluation, held_out.py) are never chosen."""
-    candidates = np.setdiff1d(np.arange(count), np.asarray(exclude, dtype=np.int64))
-    if len(candidates) <= maximum:
-        return candidates
-    return candidates[np.unique(np.round(np.linspace(0, len(candidates) - 1, maximum)).astype(int))]
+    def step(self, problem: FitProblem, state: FitState):
+        pass
 
-
-class Progress:
-    """tqdm on a terminal, or JSON lines (for the Blender add-on), or nothing."""
-
-    def __init__(self, kind, total):
-        self.kind, self.total, self.done, self.start = kind, total, 0, time.time()
-        self.bar = None
-        if kind == "bar":
-            from tqdm import tqdm
-            self.bar = tqdm(total=total, unit="step", dynamic_ncols=True)
-
-    def update(self, stage, step, loss):
-        self.done += 1
-        elapsed = time.time() - self.start
-        left = elapsed / self.done * (self.total - self.done)
-        if self.bar is not None:
-            self.bar.set_description(stage)
-            self.bar.set_postfix(loss=f"{loss:.4f}")
-            self.bar.update(1)
-        elif self.kind == "jsonl" and (self.done % 10 == 0 or self.done == self.total):
-            print(json.dumps({"event": "progress", "stage": stage, "step": step, "loss": loss,
-                              "done": self.done, "total": self.total, "seconds_left": round(left, 1)}), flush=True)
-
-    def log(self, message):
-        if self.kind == "jsonl":
-            print(json.dumps({"event": "log", "message": message}), flush=True)
-        elif self.bar is not None:
-            self.bar.write(message)
-        else:
-            print(message, file=sys.stderr)
-
-    def close(self):
-        if self.bar is not None:
-            self.bar.close()
+    def end(self, problem: FitProblem, state: FitState):
+        pass
 
 
 def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None, shadows="auto",
-        max_steps=None, hold_out_every=None, **overrides):
+        max_steps=None, hold_out_every=None, known_appearance=None, observers=(), **overrides):
     """Fit an avatar to a sequence folder with an init.npz; writes `out` and returns the report.
-    hold_out_every=N leaves every N-th frame out of the fit (held_out.py) for held-out evaluation."""
+    hold_out_every=N leaves every N-th frame out (frames.py) for held-out evaluation;
+    known_appearance=AVATAR takes shape, displacements, textures and light from that finished
+    fit, frozen, and fits only the per-frame poses (HARP-known); `overrides` replace settings."""
     sequence, out = Path(sequence), Path(out)
-    device = device or ("cuda" if torch.cuda.is_available() else "cpu")
+    problem, held_out = _set_up(sequence, preset, device, shadows, max_steps, hold_out_every, known_appearance,
+                                overrides)
+    stages = problem.settings.stages()
+    out.mkdir(parents=True, exist_ok=True)
+    saver = _CheckpointSaver(out / CHECKPOINT_FILE, problem)
+    state, generator, optimiser_state = saver.resume() if resume else saver.fresh(len(stages))
+    clock = _FitClock(state)
+    steps_left = sum(s.steps for i, s in enumerate(stages) if i >= state.stage and parameter_groups(problem, s))
+    with Progress(progress, steps_left - state.step) as reporter, _interrupt_flag() as interrupted:
+        reporter.log(_opening_line(problem, preset))
+        clock.observe(observers, "start", problem)
+        for index in range(state.stage, len(stages)):
+            run = StageRun(problem, stages[index], state, generator, optimiser_state)
+            optimiser_state = None
+            while run.has_work and not run.finished:
+                if interrupted.is_set():
+                    clock.charge()
+                    saver.save(state, run, generator)
+                    reporter.log(f"interrupted: saved {saver.path}; continue with --resume")
+                    raise KeyboardInterrupt
+                result = run.step()
+                clock.charge()
+                reporter.update(run.stage.name, state.step, result.loss)
+                if result.event:
+                    reporter.log(result.event)
+                _decide_shadows(problem, run, reporter)
+                clock.observe(observers, "step", problem)
+                saver.save_now_and_then(state, run, generator)
+            clock.charge()
+            state.stage, state.step, state.order = index + 1, 0, []
+            saver.save(state, None, generator)
+        clock.observe(observers, "end", problem)
+    return write_outputs(out, problem, state, held_out)
+
+
+def _set_up(sequence, preset, device, shadows, max_steps, hold_out_every, known_appearance, overrides):
+    """(FitProblem, held-out frames) of a fit's arguments; bad input is one FitError line."""
     validate_sequence_folder(sequence)
     initial = read_initial_estimate(sequence)
     settings = settings_for(preset, initial.frame_count, shadows=shadows, **overrides)
@@ -97,188 +100,108 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
         settings.align_steps = min(settings.align_steps, max_steps)
     held_out = held_out_frames(initial.frame_count, hold_out_every)
     frames = select_frames(initial.frame_count, settings.max_frames, exclude=held_out)
-    clip = load_clip(sequence, settings.resolution, frames, device=device)
-    out.mkdir(parents=True, exist_ok=True)
-    model = HandModel.load(initial.mode, initial.side, subdivided=True, device=device)
-    coarse_model = HandModel.load(initial.mode, initial.side, subdivided=False, device=device)
-    avatar = Avatar(model, initial, frames, settings.texture_size, coarse_model=coarse_model)
-    torch.manual_seed(settings.seed)
-    generator = torch.Generator().manual_seed(settings.seed)
-    topology = edge_topology(avatar.mesh.faces)
-    edges = topology.edges
-    face_pairs = topology.faces[topology.faces[:, 1] >= 0]
-    with torch.no_grad():
-        initial_vertices, initial_keypoints = avatar.posed(torch.arange(len(frames), device=device))
-    initial_keypoints = initial_keypoints[:, :21].detach()
-    uv_mask = torch.as_tensor(atlas_mask(model.data.uvs, model.data.faces_uv, settings.texture_size),
-                              device=device, dtype=clip.images.dtype)
-    perceptual_name, perceptual = ("off (weight 0)", None) if settings.weights.get("perceptual", 0.0) == 0.0 \
-        else perceptual_term(settings.perceptual_weights, device)
-    stages = settings.stages()
-    state = {"stage": 0, "step": 0, "history": [], "events": [], "stage_seconds": [0.0] * len(stages),
-             "shadows": {"auto": None, "decided": settings.shadows != "auto", "on": settings.shadows == "on"}}
-    checkpoint_path = out / CHECKPOINT_FILE
-    optimiser_state = None
-    if resume:
-        if not checkpoint_path.is_file():
-            raise FitError(f"nothing to resume: no {checkpoint_path}")
-        saved = torch.load(checkpoint_path, map_location=device, weights_only=False)
-        avatar.load_state_dict(saved["avatar"])
-        state.update(saved["state"])
-        optimiser_state = saved["optimiser"]
-        generator.set_state(saved["generator"])
-    reporter = Progress(progress, sum(s.steps for s in stages) - sum(s.steps for s in stages[:state["stage"]]) - state["step"])
-    reporter.log(f"fitting {len(frames)} frames ({initial.mode} mode, {initial.side} hand) with preset "
-                 f"{preset}, perceptual term {perceptual_name}; expected time {settings.expected_seconds(len(frames)) / 60:.1f} min on {device}")
-    interrupted = {"flag": False}
-    previous_handler = signal.signal(signal.SIGINT, lambda *_: interrupted.__setitem__("flag", True))
+    shared = {}
+    if known_appearance is not None:
+        known = load_checkpoint(Path(known_appearance) / CHECKPOINT_FILE, device)
+        if known.state.stage < len(known.settings.stages()):
+            raise FitError(f"the fit in {known_appearance} has not finished: resume it first")
+        shared = {name: known.avatar[name] for name in KNOWN_APPEARANCE}
+        # its light comes with its shadows decision
+        settings = dataclasses.replace(settings, shadows="on" if known.state.shadows.on else "off")
+    problem = build_problem(sequence, settings, frames, device, shared, frozen=tuple(shared))
+    return problem, held_out
 
-    def save_checkpoint(optimiser):
-        """optimiser None at a stage's end: the next stage starts a fresh one."""
-        temporary = checkpoint_path.with_suffix(".tmp")
-        torch.save({"avatar": avatar.state_dict(), "state": state,
-                    "optimiser": None if optimiser is None else optimiser.state_dict(),
-                    "generator": generator.get_state(), "settings": vars(settings)}, temporary)
-        temporary.replace(checkpoint_path)
 
+def _opening_line(problem, preset):
+    settings, initial = problem.settings, problem.initial
+    known = ", appearance known (frozen)" if problem.frozen else ""
+    return (f"fitting {len(problem.frames)} frames ({initial.mode} mode, {initial.side} hand) with preset {preset}"
+            f"{known}, perceptual term {problem.perceptual_name}; expected time "
+            f"{settings.expected_seconds(len(problem.frames)) / 60:.1f} min on {problem.device}")
+
+
+def _decide_shadows(problem, run, reporter):
+    """Self-shadowing pays off under a dominant light: `auto` decides half-way through the
+    joint stage from the fitted ambient ratio."""
+    decision = run.state.shadows
+    if decision.decided or run.stage.name != "geometry+appearance" or run.state.step < run.stage.steps // 2:
+        return
+    ambient = problem.avatar.ambient.item()
+    decision.on, decision.decided, decision.ambient_at_decision = ambient < SHADOW_AMBIENT_THRESHOLD, True, ambient
+    reporter.log(f"shadows auto: fitted ambient ratio {ambient:.2f} -> self-shadowing {'on' if decision.on else 'off'}")
+
+
+class _CheckpointSaver:
+    """Writes the fit's checkpoint (at stage ends, every settings.checkpoint_seconds, on
+    Ctrl-C) and reads it back for --resume."""
+
+    def __init__(self, path, problem):
+        self.path, self.problem, self.last_save = Path(path), problem, time.time()
+
+    def fresh(self, stage_count):
+        settings = self.problem.settings
+        return FitState.fresh(stage_count, settings.shadows), torch.Generator().manual_seed(settings.seed), None
+
+    def resume(self):
+        if not self.path.is_file():
+            raise FitError(f"nothing to resume: no {self.path}")
+        saved = load_checkpoint(self.path, self.problem.device)
+        if vars(saved.settings) != vars(self.problem.settings):
+            changed = sorted(k for k, v in vars(saved.settings).items() if vars(self.problem.settings).get(k) != v)
+            raise FitError(f"{self.path} was written with other settings ({', '.join(changed)}): "
+                           "resume with the options the fit started with")
+        self.problem.avatar.load_state_dict(saved.avatar)
+        generator = torch.Generator()
+        generator.set_state(saved.generator.cpu())
+        return saved.state, generator, saved.optimiser
+
+    def save(self, state, run, generator):
+        optimiser = None if run is None else run.optimiser.state_dict()
+        save_checkpoint(self.path, Checkpoint(self.problem.settings, state, self.problem.avatar.state_dict(),
+                                              optimiser, generator.get_state()))
+        self.last_save = time.time()
+
+    def save_now_and_then(self, state, run, generator):
+        if time.time() - self.last_save > self.problem.settings.checkpoint_seconds:
+            self.save(state, run, generator)
+
+
+class _FitClock:
+    """Charges wall time to the stage under way (FitState.stage_seconds), and the time
+    observers take to FitState.measure_seconds instead."""
+
+    def __init__(self, state):
+        self.state, self.last = state, time.perf_counter()
+
+    def _lap(self):
+        now = time.perf_counter()
+        lap, self.last = now - self.last, now
+        return lap
+
+    def charge(self):
+        """Time since the last call was fitting: it goes to the stage under way."""
+        lap = self._lap()
+        if self.state.stage < len(self.state.stage_seconds):
+            self.state.stage_seconds[self.state.stage] += lap
+
+    def observe(self, observers, event, problem):
+        if observers:
+            self.charge()
+            for observer in observers:
+                getattr(observer, event)(problem, self.state)
+            self.state.measure_seconds += self._lap()
+
+
+@contextlib.contextmanager
+def _interrupt_flag():
+    """An Event set by Ctrl-C (SIGINT) for the block, so the loop can save and stop cleanly;
+    outside the main thread (where signals cannot be caught) it is never set."""
+    flag = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield flag
+        return
+    previous = signal.signal(signal.SIGINT, lambda *_: flag.set())
     try:
-        for stage_index in range(state["stage"], len(stages)):
-            stage = stages[stage_index]
-            optimiser = _optimiser(avatar, stage, settings)
-            if optimiser_state is not None:
-                optimiser.load_state_dict(optimiser_state)
-                optimiser_state = None
-            last_good = _snapshot(avatar, optimiser)
-            best_loss = float("inf")
-            last_save = time.time()
-            stage_start = time.time() - state["stage_seconds"][stage_index]
-            order = state.pop("order", [])
-            while state["step"] < stage.steps:
-                if interrupted["flag"]:
-                    state["order"] = order
-                    state["stage_seconds"][stage_index] = time.time() - stage_start
-                    save_checkpoint(optimiser)
-                    reporter.log(f"interrupted: saved {checkpoint_path}; continue with --resume")
-                    raise KeyboardInterrupt
-                if not order:
-                    order = torch.randperm(len(frames), generator=generator).tolist()
-                size = len(frames) if stage.coarse else settings.batch_size
-                batch = torch.tensor(order[:size], device=device)
-                order = order[size:]
-                shadows_on = stage.appearance and state["shadows"]["on"]
-                optimiser.zero_grad(set_to_none=True)
-                # a long clip's full batch is rendered in chunks; their gradients add up
-                loss, terms = 0.0, {}
-                for chunk in batch.split(ALIGN_CHUNK_FRAMES):
-                    share = len(chunk) / len(batch)
-                    part, part_terms = batch_energy(avatar, clip, chunk, settings, stage, initial_keypoints,
-                                                    initial_vertices, edges, face_pairs, perceptual, uv_mask,
-                                                    shadows_on, generator)
-                    if torch.isfinite(part):
-                        (part * share).backward()
-                    loss = loss + part.detach() * share
-                    terms = {name: terms.get(name, 0.0) + value * share for name, value in part_terms.items()}
-                if torch.isfinite(loss):
-                    _mask_frozen_gradients(avatar)
-                    _lazy_step(avatar, optimiser, batch)
-                diverged = stage.coarse and loss.item() > DIVERGENCE_FACTOR * best_loss  # full batches: comparable
-                best_loss = min(best_loss, loss.item()) if torch.isfinite(loss) else best_loss
-                if not torch.isfinite(loss) or not _finite(avatar) or diverged:
-                    _restore(avatar, optimiser, last_good)
-                    for group in optimiser.param_groups:
-                        group["lr"] *= 0.5
-                    problem = f"loss rose to {loss.item():.4g} from {best_loss:.4g}" if diverged else "non-finite loss"
-                    message = f"{problem} at {stage.name} step {state['step']}: rolled back, learning rates halved"
-                    state["events"].append(message)
-                    reporter.log(message)
-                    state["step"] += 1
-                    continue
-                state["step"] += 1
-                if state["step"] % ROLLBACK_EVERY == 0:
-                    last_good = _snapshot(avatar, optimiser)
-                state["history"].append({"stage": stage.name, "step": state["step"], "loss": loss.item(), **terms})
-                reporter.update(stage.name, state["step"], loss.item())
-                if stage.name == "geometry+appearance" and not state["shadows"]["decided"] \
-                        and state["step"] >= stage.steps // 2:
-                    _decide_shadows(avatar, state, reporter)
-                if time.time() - last_save > settings.checkpoint_seconds:
-                    state["order"] = order
-                    state["stage_seconds"][stage_index] = time.time() - stage_start
-                    save_checkpoint(optimiser)
-                    state.pop("order")
-                    last_save = time.time()
-            state["stage_seconds"][stage_index] = time.time() - stage_start
-            state["stage"], state["step"] = stage_index + 1, 0
-            save_checkpoint(None)
+        yield flag
     finally:
-        signal.signal(signal.SIGINT, previous_handler)
-        reporter.close()
-    from .outputs import write_outputs
-
-    report = write_outputs(out, sequence, avatar, clip, settings, state, initial, perceptual_name)
-    return record_held_out(out, report, held_out)
-
-
-def _optimiser(avatar, stage, settings):
-    groups = []
-    if stage.coarse:  # rotations and translations at their own rates; no displacements yet
-        groups.append({"params": [avatar.global_orient, avatar.pose], "lr": settings.lr_align_rotation})
-        groups.append({"params": [avatar.transl], "lr": settings.lr_align_translation})
-        groups.append({"params": [avatar.betas], "lr": settings.lr_betas})
-    elif stage.geometry:
-        groups.append({"params": avatar.parameter_group(PER_FRAME), "lr": settings.lr_geometry})
-        groups.append({"params": [avatar.betas], "lr": settings.lr_betas})
-        groups.append({"params": [avatar.displacement], "lr": settings.lr_displacement})
-    if stage.appearance:
-        groups.append({"params": avatar.parameter_group(APPEARANCE), "lr": settings.lr_appearance})
-    return torch.optim.Adam(groups)
-
-
-PER_FRAME = ("global_orient", "transl", "pose")
-
-
-def _lazy_step(avatar, optimiser, batch):
-    """Adam step that leaves the per-frame parameters of frames outside the batch untouched,
-    values and moments alike (otherwise stale momentum keeps moving them: a "lazy" Adam)."""
-    outside = torch.ones(avatar.pose.shape[0], dtype=torch.bool, device=batch.device)
-    outside[batch] = False
-    saved = []
-    for name in PER_FRAME:
-        parameter = getattr(avatar, name)
-        moments = optimiser.state.get(parameter, {})
-        saved.append((parameter, parameter.data[outside].clone(),
-                      {k: v[outside].clone() for k, v in moments.items() if torch.is_tensor(v) and v.dim() > 0}))
-    optimiser.step()
-    for parameter, values, moments in saved:
-        parameter.data[outside] = values
-        for key, value in moments.items():
-            optimiser.state[parameter][key][outside] = value
-
-
-def _mask_frozen_gradients(avatar):
-    if avatar.pose.grad is not None:
-        avatar.pose.grad *= avatar.pose_mask
-
-
-def _finite(avatar):
-    return all(bool(torch.isfinite(p).all()) for p in avatar.parameters())
-
-
-def _snapshot(avatar, optimiser):
-    return copy.deepcopy(avatar.state_dict()), copy.deepcopy(optimiser.state_dict())
-
-
-def _restore(avatar, optimiser, snapshot):
-    learning_rates = [group["lr"] for group in optimiser.param_groups]
-    avatar.load_state_dict(snapshot[0])
-    optimiser.load_state_dict(snapshot[1])
-    for group, lr in zip(optimiser.param_groups, learning_rates):
-        group["lr"] = lr
-
-
-def _decide_shadows(avatar, state, reporter):
-    """Self-shadowing pays off under a dominant light: decide from the fitted ambient ratio."""
-    ambient = avatar.ambient.item()
-    on = ambient < SHADOW_AMBIENT_THRESHOLD
-    state["shadows"].update(auto=True, decided=True, on=on, ambient_at_decision=ambient)
-    reporter.log(f"shadows auto: fitted ambient ratio {ambient:.2f} -> self-shadowing {'on' if on else 'off'}")
+        signal.signal(signal.SIGINT, previous)

@@ -14,12 +14,12 @@ import torch
 from .. import metrics
 from ..formats import avatar_folder as av
 from ..formats import hand_model_file as fmt
+from ..formats.fit_report import HELD_OUT_FRAMES, write_report
 from ..formats.sequence_folder import write_png
 from ..render.renderer import render
 
 GRID_FILE = "fit_grid.png"
 VIDEO_FILE = "overlay.mp4"
-REPORT_FILE = "report.json"
 
 
 @torch.no_grad()
@@ -38,7 +38,7 @@ def render_all(avatar, clip, shadows, batch_size=8):
     return torch.cat(rgb), torch.cat(alpha)
 
 
-def evaluate(rgb, alpha, clip):
+def image_scores(rgb, alpha, clip):
     """Per-frame silhouette IoU and, inside the mask, L1 and PSNR of the render composited over
     the background plate (render_all) against the frame; MS-SSIM on the masked frames.
     A mask pixel the render misses shows the plate there and counts as an error; a silhouette
@@ -60,38 +60,46 @@ def evaluate(rgb, alpha, clip):
 
 
 def metrics_line(scores):
-    """One line of a fit's image figures (evaluate's result), for logs."""
+    """One line of a fit's image figures (image_scores' result), for logs."""
     iou = scores["silhouette_iou"]
     return (f"silhouette IoU min {min(iou):.3f} (mean {sum(iou) / len(iou):.3f}), PSNR in the mask "
             f"{scores['psnr_mean']:.1f} dB (min {scores['psnr_min']:.1f}), L1 {scores['l1_mean']:.4f}, "
             f"MS-SSIM {scores.get('ms_ssim_mean', float('nan')):.3f}")
 
 
-def write_outputs(out, sequence, avatar, clip, settings, state, initial, perceptual_name):
+def write_outputs(out, problem, state, held_out=()):
+    """The avatar folder, report.json, fit_grid.png and overlay.mp4 of a finished fit; returns
+    the report. `held_out` are the sequence frames left out for evaluation."""
     out = Path(out)
     start = time.time()
-    shadows = bool(state["shadows"]["on"])
+    avatar, clip, settings = problem.avatar, problem.clip, problem.settings
+    shadows = bool(state.shadows.on)
     rgb, alpha = render_all(avatar, clip, shadows)
-    scores = evaluate(rgb, alpha, clip)
-    _write_avatar(out, avatar, clip, settings, state, initial, perceptual_name, shadows)
+    scores = image_scores(rgb, alpha, clip)
+    _write_avatar(out, problem, state, shadows)
     _write_grid(out / GRID_FILE, clip, rgb)
     _write_video(out / VIDEO_FILE, clip, rgb)
     last = {}
-    for entry in state["history"]:
+    for entry in state.history:
         last[entry["stage"]] = entry
     report = {
-        "sequence": str(sequence), "frames": clip.frames.tolist(), "preset": settings.preset,
-        "stage_seconds": dict(zip([stage.name for stage in settings.stages()], state["stage_seconds"])),
-        "total_seconds": float(sum(state["stage_seconds"])), "output_seconds": time.time() - start,
-        "final_losses": last, "metrics": scores, "shadows": state["shadows"], "events": state["events"],
-        "perceptual_term": perceptual_name, "ambient": avatar.ambient.item(),
+        "sequence": str(problem.sequence), "frames": clip.frames.tolist(), "preset": settings.preset,
+        "stage_seconds": dict(zip([stage.name for stage in settings.stages()], state.stage_seconds)),
+        "total_seconds": state.fit_seconds, "measure_seconds": state.measure_seconds,
+        "output_seconds": time.time() - start, "final_losses": last, "metrics": scores,
+        "shadows": dataclasses.asdict(state.shadows), "events": state.events,
+        "perceptual_term": problem.perceptual_name, "ambient": avatar.ambient.item(),
         "light_position": avatar.light_position.detach().cpu().tolist(),
+        "appearance": "known (frozen)" if problem.frozen else "fitted",
     }
-    (out / REPORT_FILE).write_text(json.dumps(report, indent=2))
+    if len(held_out):
+        report[HELD_OUT_FRAMES] = [int(i) for i in held_out]
+    write_report(out, report)
     return report
 
 
-def _write_avatar(out, avatar, clip, settings, state, initial, perceptual_name, shadows):
+def _write_avatar(out, problem, state, shadows):
+    avatar, clip, settings = problem.avatar, problem.clip, problem.settings
     model_data = avatar.model.data
     rest = avatar.rest_mesh().cpu().numpy().astype(np.float64)
     betas = avatar.betas.detach().cpu().numpy().astype(np.float64)
@@ -113,8 +121,8 @@ def _write_avatar(out, avatar, clip, settings, state, initial, perceptual_name, 
                   "shadows": shadows},
         "camera": {"K": clip.K.cpu().tolist(), "width": clip.width, "height": clip.height},
         "settings": {k: v for k, v in vars(settings).items() if k != "weights"} | {"weights": settings.weights},
-        "stage_seconds": state["stage_seconds"], "perceptual_term": perceptual_name,
-        "initialisation": initial.source,
+        "stage_seconds": state.stage_seconds, "perceptual_term": problem.perceptual_name,
+        "initialisation": problem.initial.source,
     })
 
 

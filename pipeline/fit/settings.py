@@ -18,7 +18,12 @@ class Stage:
     steps: int
     geometry: bool          # geometry parameters move, geometry terms count
     appearance: bool        # appearance parameters move, appearance terms count
-    coarse: bool = False    # every frame in each step, on the unsubdivided mesh, no displacements
+    coarse: bool = False    # on the unsubdivided mesh, no displacements (implies all_frames)
+    all_frames: bool = False  # every frame in each step (else batches drawn from a shuffled epoch)
+
+    @property
+    def full_batch(self):
+        return self.all_frames or self.coarse
 
 
 @dataclasses.dataclass
@@ -55,6 +60,16 @@ class FitSettings:
         scale = (self.batch_size / 6) * (self.resolution / 256) ** 2
         align = self.align_steps * min(frame_count, self.max_frames) * self.seconds_per_align_frame
         return sum(s * c for s, c in zip(self.steps, self.seconds_per_step)) * scale + align
+
+
+    @classmethod
+    def from_dict(cls, values):
+        """FitSettings from vars() of one (as a checkpoint stores them); unknown keys are an error."""
+        values = dict(values)
+        for name in ("steps", "seconds_per_step"):
+            if name in values:
+                values[name] = tuple(values[name])
+        return cls(**values)
 
 
 PRESETS = {

@@ -343,3 +343,15 @@ def read_mask(path) -> np.ndarray:
     if mask is None:
         raise SequenceFolderError(f"cannot read mask {path}")
     return mask >= 128
+
+
+def frame_ranges(indices):
+    """"1-3, 7" for [1, 2, 3, 7]."""
+    parts, start = [], None
+    for i, value in enumerate(indices):
+        if start is None:
+            start = value
+        if i + 1 == len(indices) or indices[i + 1] != value + 1:
+            parts.append(str(start) if start == value else f"{start}-{value}")
+            start = None
+    return ", ".join(parts)

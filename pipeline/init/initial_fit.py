@@ -247,7 +247,7 @@ class _ClipFit:
 
 
 def fit_initial_estimate(keypoints, K, mode="hand", side="right", settings=None, model=None, log=None):
-    """InitialEstimate from Keypoints2D (see keypoint_detection) and K (3, 3) pixels."""
+    """InitialEstimate from Keypoints2D (formats/keypoint_file.py) and K (3, 3) pixels."""
     settings = settings or InitialFitSettings()
     log = log or (lambda message: None)
     dtype = torch.float64

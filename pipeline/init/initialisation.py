@@ -2,7 +2,7 @@
 
     mediapipe        detect 2D keypoints (saved as SEQUENCE/keypoints.json, a keypoint file
                      that `--init keypoints` reads back) and fit the model to them
-    keypoints FILE   fit the model to the keypoints of a file (keypoint_detection.read_keypoint_file)
+    keypoints FILE   fit the model to the keypoints of a file (formats/keypoint_file.py)
     gt-noise         synthetic clips: the ground truth with controlled noise
 
 The template mode (hand, or hand + forearm) is given or chosen from the masks (`auto`): arm
@@ -19,8 +19,7 @@ import numpy as np
 
 from ..formats import sequence_folder as seq
 from ..formats.initial_estimate import write_initial_estimate
-from ..sequence_import import frame_ranges
-from . import keypoint_detection as kd
+from ..formats.keypoint_file import read_keypoint_file, write_keypoint_file
 
 METHODS = ("mediapipe", "keypoints", "gt-noise")
 ARM_FRACTION = 0.02
@@ -72,10 +71,12 @@ def initialise_sequence(folder, method="mediapipe", keypoint_file=None, mode="au
             raise ValueError("harp init reads image frames; this sequence's frames are a video")
         if method == "mediapipe":
             log(f"detecting keypoints in {info.frame_count} frames with MediaPipe Hands")
-            keypoints = kd.detect_sequence_keypoints(folder, info)
-            kd.write_keypoint_file(folder / KEYPOINTS_FILE, keypoints)
+            from ..detection.mediapipe_hands import detect_sequence_keypoints
+
+            keypoints = detect_sequence_keypoints(folder, info)
+            write_keypoint_file(folder / KEYPOINTS_FILE, keypoints)
         else:
-            keypoints = kd.read_keypoint_file(keypoint_file, info.frame_count, info.width, info.height)
+            keypoints = read_keypoint_file(keypoint_file, info.frame_count, info.width, info.height)
         _report_keypoints(keypoints, info, log, warn)
         if mode == "auto":
             mode, reason = choose_mode(folder, info, keypoints)
@@ -92,7 +93,7 @@ def _report_keypoints(keypoints, info, log, warn):
     summary = keypoints.summary()
     missing = np.flatnonzero(~keypoints.detected)
     log(f"keypoints ({summary['source']}): {summary['detected']} of {summary['frames']} frames"
-        + (f"; interpolated frames {frame_ranges(missing.tolist())}" if len(missing) else ""))
+        + (f"; interpolated frames {seq.frame_ranges(missing.tolist())}" if len(missing) else ""))
     agreement = summary.get("handedness_agreement")
     if agreement is not None and agreement < 0.5:
         warn(f"warning: MediaPipe takes the hand for a {'left' if info.hand_side == 'right' else 'right'} hand in "

@@ -1,0 +1,153 @@
+"""The fitted albedo against the true one (synthetic clips): the fitted albedo.png against the
+sequence's gt_albedo.png in the visible UV area (texels seen in at least one frame), raw and
+after the best per-channel scale.
+
+Colours: both albedo images hold 8-bit display values in [0, 1]. The fit treats the 8-bit
+frames as linear, so its albedo lives in the same value space as the sRGB-encoded
+gt_albedo.png, up to the factor that albedo and light intensity trade (hence the scaled
+figures).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from ..formats import avatar_folder as av
+from ..formats import sequence_folder as seq
+from ..handmodel.lbs import HandModel, load_model_data
+from ..handmodel.uv_atlas import uv_mask as atlas_mask
+from ..render.interpolate import fragments, interpolate
+from ..render.rasterize import rasterize
+from ..render.renderer import RenderMesh
+from ..fit.problem import default_device
+from .finished_fit import EvaluationError, fitted_avatar, posed_surfaces
+
+ALBEDO_PICTURE = "albedo_comparison.png"
+
+
+def visible_texels(vertices, mesh: RenderMesh, K, height, width, texture_size, supersample=None, batch_size=4):
+    """(T, T) bool image of the UV atlas (row 0 = v 1): texels that hold the UV of a visible
+    surface point at some pixel centre of some frame.
+
+    vertices (F, V, 3) camera frame, metres; K (3, 3) for the height x width images. The frames
+    are rendered `supersample` times finer (default: at least two samples per texel width) so
+    that the seen texels form a solid area, not a sampling pattern."""
+    vertices = torch.as_tensor(vertices, dtype=torch.float32)
+    device = vertices.device
+    supersample = supersample or max(1, math.ceil(2 * texture_size / max(height, width)))
+    K = torch.as_tensor(K, dtype=vertices.dtype, device=device).clone()
+    K[:2] *= supersample
+    faces, uvs, faces_uv = (t.to(device) for t in (mesh.faces, mesh.uvs, mesh.faces_uv))
+    seen = torch.zeros(texture_size * texture_size, dtype=torch.bool, device=device)
+    for chunk in vertices.split(batch_size):
+        rast = rasterize(chunk, faces, K, height * supersample, width * supersample)
+        uv = interpolate(uvs.to(chunk.dtype), fragments(chunk, faces, K, rast), faces_uv)
+        column = (uv[:, 0] * texture_size).floor().long().clamp(0, texture_size - 1)
+        row = ((1 - uv[:, 1]) * texture_size).floor().long().clamp(0, texture_size - 1)
+        seen[row * texture_size + column] = True
+    return seen.view(texture_size, texture_size).cpu().numpy()
+
+
+def albedo_error(fitted, truth, visible):
+    """Errors of a fitted albedo (H, W, 3) against the true one (H, W, 3), both in [0, 1], over
+    the `visible` (H, W) texels: mean absolute error and PSNR (dB, peak 1) as they are, and after
+    multiplying the fitted albedo by the per-channel scale that fits the truth best in least
+    squares (albedo and light intensity trade off, so the scale is not the fit's to know)."""
+    f = np.asarray(fitted, dtype=np.float64)[visible]
+    g = np.asarray(truth, dtype=np.float64)[visible]
+    if not len(f):
+        raise EvaluationError("no visible texels to compare")
+    scale = (f * g).sum(0) / np.maximum((f * f).sum(0), 1e-12)
+
+    def errors(difference):
+        return float(np.abs(difference).mean()), float(10 * np.log10(1 / max(np.square(difference).mean(), 1e-12)))
+
+    mae, psnr = errors(f - g)
+    mae_scaled, psnr_scaled = errors(f * scale - g)
+    return {"mae": mae, "psnr": psnr, "scale": scale.tolist(), "mae_scaled": mae_scaled, "psnr_scaled": psnr_scaled,
+            "texels": int(len(f))}
+
+
+@dataclasses.dataclass
+class AlbedoTruth:
+    """The true albedo of a synthetic sequence at a texture size, and which texels the clip shows."""
+
+    image: np.ndarray             # (T, T, 3) gt_albedo.png resized to T, values in [0, 1]
+    visible: np.ndarray           # (T, T) bool: seen in some frame, inside the UV charts
+    visible_fraction: float       # of the UV charts' area
+    source: str                   # what the visibility was computed from
+    ground_truth_size: list       # gt_albedo.png's own [width, height]
+
+
+def albedo_truth(sequence, size, device=None, fit_folder=None) -> AlbedoTruth:
+    """gt_albedo.png at `size` texels and the visible UV area: texels holding a surface point
+    seen at a pixel centre of some frame of the clip, from the ground-truth meshes (gt.npz
+    vertices, else the hand model at the true parameters, else the fitted meshes of
+    `fit_folder`)."""
+    device = default_device(device)
+    sequence = Path(sequence)
+    info = seq.read_sequence_info(sequence)
+    if not info.albedo or not (sequence / info.albedo).is_file():
+        raise EvaluationError(f"the sequence {sequence} has no ground-truth albedo")
+    truth = seq.read_rgb(sequence / info.albedo).astype(np.float64) / 255
+    if truth.shape[:2] != (size, size):
+        shrink = truth.shape[0] > size
+        truth = cv2.resize(truth, (size, size), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+    vertices, data, source = _visibility_meshes(fit_folder, sequence, info, device)
+    mesh = RenderMesh.from_model_data(data, device=device)
+    visible = visible_texels(vertices, mesh, info.K, info.height, info.width, size)
+    in_atlas = atlas_mask(data.uvs, data.faces_uv, size)
+    visible &= in_atlas
+    return AlbedoTruth(truth, visible, float(visible.sum() / in_atlas.sum()), source,
+                       list(seq.png_size(sequence / info.albedo)))
+
+
+def evaluate_albedo(fit_folder, sequence, device=None, picture=True):
+    """The fit's albedo.png against the sequence's gt_albedo.png (resized to the fitted size) in
+    the visible UV area (albedo_truth). Writes albedo_comparison.png (fitted | true | error)
+    into the fit folder."""
+    folder = Path(fit_folder)
+    fitted = seq.read_rgb(folder / av.ALBEDO_FILE).astype(np.float64) / 255
+    size = fitted.shape[0]
+    truth = albedo_truth(sequence, size, device, folder)
+    result = {**albedo_error(fitted, truth.image, truth.visible), "visible_fraction_of_uv_area": truth.visible_fraction,
+              "texture_size": size, "ground_truth_size": truth.ground_truth_size, "visibility_from": truth.source}
+    if picture:
+        write_albedo_picture(folder / ALBEDO_PICTURE, fitted, truth.image, truth.visible)
+        result["picture"] = ALBEDO_PICTURE
+    return result
+
+
+def _visibility_meshes(folder, sequence, info, device):
+    if info.ground_truth:
+        gt = seq.read_ground_truth(sequence / info.ground_truth)
+        data = load_model_data(gt.mode, gt.side)
+        if gt.vertices is not None:
+            return torch.as_tensor(gt.vertices, dtype=torch.float32, device=device), data, "gt.npz vertices"
+        model = HandModel.load(gt.mode, gt.side, device=device)
+        with torch.no_grad():
+            out = model(*(torch.as_tensor(a, device=device) for a in (gt.betas, gt.pose, gt.global_orient, gt.transl)))
+        return out.vertices, data, "hand model at the gt.npz parameters"
+    if folder is None:
+        raise EvaluationError(f"the sequence {sequence} has no ground truth to tell the visible texels")
+    avatar, _ = fitted_avatar(folder, sequence, device)
+    return posed_surfaces(avatar), avatar.model.data, "fitted meshes"
+
+
+def write_albedo_picture(path, fitted, truth, visible, minimum_size=256):
+    """fitted | true | |difference| x4 (mean over channels, colour-mapped); texels outside the
+    visible area are dimmed (and black in the error panel)."""
+    dim = np.where(visible[..., None], 1.0, 0.35)
+    error = np.clip(np.abs(fitted - truth).mean(-1) * 4, 0, 1)
+    heat = cv2.applyColorMap(np.round(error * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)[..., ::-1] / 255
+    heat = heat * visible[..., None]
+    panels = np.concatenate([fitted * dim, truth * dim, heat], axis=1)
+    zoom = max(1, math.ceil(minimum_size / fitted.shape[0]))
+    panels = np.repeat(np.repeat(panels, zoom, axis=0), zoom, axis=1)
+    seq.write_png(path, np.round(np.clip(panels, 0, 1) * 255).astype(np.uint8))
+    return Path(path)

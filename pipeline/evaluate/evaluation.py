@@ -1,0 +1,85 @@
+"""`harp evaluate FIT SEQUENCE`: every evaluation that applies to a finished fit, written to
+FIT/evaluation.json (method_facts.md, "Evaluation"):
+
+    held out   frames the fit never saw: pose and light fitted, appearance frozen (held_out.py)
+    albedo     the fitted albedo against gt_albedo.png in the visible UV area (albedo.py)
+    poses      Procrustes-aligned joint and vertex errors of init.npz and the fit (poses.py)
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..formats import sequence_folder as seq
+from ..formats.fit_report import HELD_OUT_FRAMES, read_report
+from .albedo import evaluate_albedo
+from .held_out import evaluate_held_out
+from .poses import evaluate_poses
+
+EVALUATION_FILE = "evaluation.json"
+
+
+def evaluate_fit(fit_folder, sequence, held_out_steps=100, device=None):
+    """Every evaluation that applies to this fit and sequence: held-out frames if the report
+    lists some, albedo if the sequence has gt_albedo.png, poses if it has gt.npz. Writes
+    evaluation.json into the fit folder and returns its content."""
+    folder, sequence = Path(fit_folder), Path(sequence)
+    report = read_report(folder)
+    info = seq.validate_sequence_folder(sequence)
+    scores = report.get("metrics", {})
+    result = {"fit_folder": str(folder), "sequence": str(sequence),
+              "fit_frames": {"frames": report.get("frames"), "psnr_mean": scores.get("psnr_mean"),
+                             "l1_mean": scores.get("l1_mean"), "ms_ssim_mean": scores.get("ms_ssim_mean"),
+                             "silhouette_iou_mean": float(np.mean(scores["silhouette_iou"]))
+                             if scores.get("silhouette_iou") else None}}
+    held_out = None
+    if report.get(HELD_OUT_FRAMES):
+        held_out = evaluate_held_out(folder, sequence, steps=held_out_steps, device=device)
+        result["held_out"] = held_out.to_json()
+    if info.albedo:
+        result["albedo"] = evaluate_albedo(folder, sequence, device=device)
+    if info.ground_truth:
+        result["poses"] = evaluate_poses(folder, sequence, device=device, held_out=held_out)
+    (folder / EVALUATION_FILE).write_text(json.dumps(result, indent=2))
+    return result
+
+
+def summary_lines(result):
+    """A few lines of figures from an evaluate_fit result."""
+    lines = []
+
+    def images(scores):
+        text = f"PSNR {scores['psnr_mean']:.2f} dB, L1 {scores['l1_mean']:.4f}"
+        if scores.get("ms_ssim_mean") is not None:
+            text += f", MS-SSIM {scores['ms_ssim_mean']:.3f}"
+        return text + f", IoU {scores['silhouette_iou_mean']:.3f}"
+
+    if result["fit_frames"].get("psnr_mean") is not None:
+        lines.append(f"fitted frames ({len(result['fit_frames']['frames'])}): {images(result['fit_frames'])}")
+    if "held_out" in result:
+        held = result["held_out"]
+        before = held["metrics_before"]
+        lines.append(f"held-out frames ({len(held['frames'])}, {held['steps']} pose+light steps): "
+                     f"{images(held['metrics'])} (at the initial pose: PSNR {before['psnr_mean']:.2f} dB, "
+                     f"IoU {before['silhouette_iou_mean']:.3f}; loss {held['loss_before']:.4f} -> "
+                     f"{held['loss_after']:.4f})")
+    if "albedo" in result:
+        a = result["albedo"]
+        scale = ", ".join(f"{s:.2f}" for s in a["scale"])
+        lines.append(f"albedo in the visible UV area ({a['visible_fraction_of_uv_area']:.0%} of it): "
+                     f"MAE {a['mae']:.4f}, PSNR {a['psnr']:.2f} dB; after per-channel scale ({scale}): "
+                     f"MAE {a['mae_scaled']:.4f}, PSNR {a['psnr_scaled']:.2f} dB")
+    if "poses" in result:
+        poses = result["poses"]
+        for label, entry in (("fitted frames", poses), ("held-out frames", poses.get("held_out"))):
+            if entry is None:
+                continue
+            parts = []
+            for kind in ("joints", "vertices", "surface"):
+                if kind in entry["initial"]:
+                    parts.append(f"{kind} {entry['initial'][kind]['procrustes_mm_mean']:.2f} -> "
+                                 f"{entry['fit'][kind]['procrustes_mm_mean']:.2f}")
+            lines.append(f"pose error, {label} (Procrustes-aligned mm, initial -> fit): {'; '.join(parts)}")
+    return lines

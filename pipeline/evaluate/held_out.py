@@ -1,0 +1,86 @@
+"""Held-out frames: the avatar judged on frames its fit never saw (method_facts.md, "Evaluation").
+
+The fit (fit(..., hold_out_every=N)) leaves them out and lists them in report.json. Here the
+fit problem is built over them (fit/problem.py, the fit's own builder and settings) with shape,
+displacements and textures taken from the fit's checkpoint and frozen, the light taken from it
+and fitted, and the per-frame pose and translation starting from init.npz. One stage of the
+fit's own steps (fit/stage_run.py), every held-out frame in every step, minimises the fit's
+silhouette, keypoint-anchor, photometric and perceptual terms with the fit's weights (the
+other terms weighted zero). Self-shadowing is as the fit decided. Then PSNR and L1 in the
+mask, MS-SSIM and silhouette IoU per frame and mean (fit/outputs.image_scores).
+"""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..fit.avatar import LIGHT, SHAPE, TEXTURES, Avatar
+from ..fit.checkpoint import FitState
+from ..fit.outputs import image_scores, render_all
+from ..fit.problem import build_problem, default_device
+from ..fit.settings import Stage
+from ..fit.stage_run import StageRun
+from ..formats.fit_report import HELD_OUT_FRAMES
+from ..formats.initial_estimate import read_initial_estimate
+from .finished_fit import EvaluationError, load_finished_fit
+
+HELD_OUT_TERMS = ("silhouette", "keypoint_anchor", "photometric", "perceptual")
+FROZEN = SHAPE + TEXTURES     # taken from the fit, never changed (the light is taken, then fitted)
+
+
+@dataclasses.dataclass
+class HeldOutResult:
+    frames: np.ndarray        # (K,) sequence frame indices
+    metrics: dict             # image_scores after fitting pose and light (+ silhouette_iou_mean)
+    metrics_before: dict      # the same at the initial estimate with the fit's light
+    loss_before: float        # held-out energy (HELD_OUT_TERMS, the fit's weights) over all K frames
+    loss_after: float
+    history: list             # per step: loss and terms before the step's update
+    events: list
+    shadows: bool
+    avatar: Avatar            # its per-frame parameters are the held-out frames'
+
+    def to_json(self):
+        return {"frames": self.frames.tolist(), "steps": len(self.history), "terms": list(HELD_OUT_TERMS),
+                "loss_before": self.loss_before, "loss_after": self.loss_after,
+                "loss_history": [entry["loss"] for entry in self.history], "shadows": self.shadows,
+                "events": self.events, "metrics": self.metrics, "metrics_before": self.metrics_before}
+
+
+def evaluate_held_out(fit_folder, sequence, frames=None, steps=100, device=None) -> HeldOutResult:
+    """Fit pose, translation and light to frames the fit left out (default: the report's
+    held-out frames), appearance and shape frozen, in `steps` steps; score them before and after."""
+    device = default_device(device)
+    saved, report = load_finished_fit(fit_folder, device)
+    frames = np.asarray(report.get(HELD_OUT_FRAMES, []) if frames is None else frames, dtype=np.int64)
+    if steps < 0:
+        raise EvaluationError(f"held-out steps must be 0 or more, got {steps}")
+    if not len(frames):
+        raise EvaluationError(f"the fit in {fit_folder} held out no frames (fit with hold_out_every=N)")
+    count = read_initial_estimate(sequence).frame_count
+    if frames.min() < 0 or frames.max() >= count:
+        raise EvaluationError(f"held-out frames {frames.tolist()} outside the clip's {count} frames")
+    weights = {name: (value if name in HELD_OUT_TERMS else 0.0) for name, value in saved.settings.weights.items()}
+    settings = dataclasses.replace(saved.settings, weights=weights)
+    problem = build_problem(Path(sequence), settings, frames, device,
+                            shared={name: saved.avatar[name] for name in FROZEN + LIGHT}, frozen=FROZEN)
+    shadows = bool(saved.state.shadows.on)
+    state = FitState.fresh(1, "on" if shadows else "off")
+    run = StageRun(problem, Stage("held-out", steps, geometry=True, appearance=True, all_frames=True), state,
+                   torch.Generator().manual_seed(settings.seed))
+
+    def loss_and_scores():
+        with torch.no_grad():
+            loss, _ = run.energy(problem.all_frames(), backward=False)
+        scores = image_scores(*render_all(problem.avatar, problem.clip, shadows), problem.clip)
+        return loss, {**scores, "silhouette_iou_mean": float(np.mean(scores["silhouette_iou"]))}
+
+    loss_before, metrics_before = loss_and_scores()
+    while run.has_work and not run.finished:
+        run.step()
+    loss_after, metrics = loss_and_scores()
+    return HeldOutResult(frames, metrics, metrics_before, loss_before, loss_after, state.history, state.events,
+                         shadows, problem.avatar)

@@ -1,0 +1,103 @@
+"""The state of a fit under way and its checkpoint file (AVATAR/checkpoint.pt).
+
+A checkpoint holds everything a fit needs to go on exactly where it stopped: the settings, the
+loop's state (FitState), every avatar parameter, the optimiser's moments (None at a stage's
+end: the next stage starts a fresh optimiser) and the random generator. It is written
+atomically (a temporary file, then a rename), so a fit killed while saving keeps the previous
+checkpoint. Only tensors, numbers, strings, lists and dicts are stored, so it loads with
+torch's safe `weights_only` loader.
+"""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import torch
+
+from .problem import FitError
+from .settings import FitSettings
+
+CHECKPOINT_FILE = "checkpoint.pt"
+CHECKPOINT_FORMAT = "harp-fit-checkpoint"
+CHECKPOINT_VERSION = 2
+
+
+@dataclasses.dataclass
+class ShadowDecision:
+    """Self-shadowing: as asked (`auto`, `on`, `off`), and for `auto` when and how it was decided."""
+
+    requested: str = "auto"
+    on: bool = False
+    decided: bool = False
+    ambient_at_decision: float | None = None
+
+    @classmethod
+    def requested_as(cls, shadows):
+        return cls(requested=shadows, on=shadows == "on", decided=shadows != "auto")
+
+
+@dataclasses.dataclass
+class FitState:
+    """Where a fit stands: the stage under way and the steps done in it, the time spent per
+    stage, the loss history, the events (rollbacks) and the frames still to draw this epoch."""
+
+    stage_seconds: list                 # seconds of fitting per stage (measuring excluded)
+    shadows: ShadowDecision
+    stage: int = 0                      # index of the stage under way (len(stages) when done)
+    step: int = 0                       # steps done in that stage
+    history: list = dataclasses.field(default_factory=list)   # per step: stage, step, loss, terms
+    events: list = dataclasses.field(default_factory=list)    # one line each (rollbacks)
+    order: list = dataclasses.field(default_factory=list)     # frames of the current epoch not yet drawn
+    measure_seconds: float = 0.0        # time observers (the anytime curve) took, not fit time
+
+    @classmethod
+    def fresh(cls, stage_count, shadows="auto"):
+        return cls(stage_seconds=[0.0] * stage_count, shadows=ShadowDecision.requested_as(shadows))
+
+    @property
+    def fit_seconds(self) -> float:
+        return float(sum(self.stage_seconds))
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, values) -> "FitState":
+        values = dict(values)
+        values["shadows"] = ShadowDecision(**values["shadows"])
+        return cls(**values)
+
+
+@dataclasses.dataclass
+class Checkpoint:
+    settings: FitSettings
+    state: FitState
+    avatar: dict                        # the Avatar's state_dict
+    optimiser: dict | None              # the stage's optimiser state_dict; None at a stage's end
+    generator: torch.Tensor             # torch.Generator state
+
+
+def save_checkpoint(path, checkpoint: Checkpoint) -> Path:
+    path = Path(path)
+    temporary = path.with_suffix(".tmp")
+    torch.save({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION,
+                "settings": vars(checkpoint.settings), "state": checkpoint.state.to_dict(),
+                "avatar": checkpoint.avatar, "optimiser": checkpoint.optimiser,
+                "generator": checkpoint.generator}, temporary)
+    temporary.replace(path)
+    return path
+
+
+def load_checkpoint(path, device=None) -> Checkpoint:
+    """The checkpoint at `path`; a missing, unreadable or older file is one FitError line."""
+    path = Path(path)
+    if not path.is_file():
+        raise FitError(f"no checkpoint at {path}")
+    try:
+        saved = torch.load(path, map_location=device, weights_only=True)
+    except Exception as error:  # truncated, not a torch file, unsafe content
+        raise FitError(f"cannot read the checkpoint {path}: {str(error).splitlines()[0]}") from None
+    if saved.get("format") != CHECKPOINT_FORMAT or saved.get("version") != CHECKPOINT_VERSION:
+        raise FitError(f"{path} is a checkpoint of an older harp version: fit again without --resume")
+    return Checkpoint(FitSettings.from_dict(saved["settings"]), FitState.from_dict(saved["state"]),
+                      saved["avatar"], saved["optimiser"], saved["generator"])

@@ -1,0 +1,168 @@
+"""One stage of a fit under way: its Adam optimiser, the batches it draws, and the step with
+its safeguards (lazy per-frame updates, rollback on a non-finite or diverging loss).
+
+Each step records itself in the FitState (step count, history, events), so a stage can be
+stopped and resumed between any two steps.
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+
+import torch
+
+from .avatar import APPEARANCE, PER_FRAME
+from .checkpoint import FitState
+from .energy import batch_energy
+from .problem import FitProblem
+from .settings import Stage
+
+ROLLBACK_EVERY = 20       # steps between the snapshots a rollback returns to
+ALIGN_CHUNK_FRAMES = 32   # frames of the unsubdivided mesh rendered at once in a full batch
+DIVERGENCE_FACTOR = 1.5   # a full-batch loss this much above the best so far counts as divergence
+
+
+@dataclasses.dataclass
+class StepResult:
+    loss: float
+    terms: dict
+    event: str | None = None   # what went wrong and was undone, if anything
+
+
+def parameter_groups(problem: FitProblem, stage: Stage):
+    """Adam parameter groups of a stage, frozen parameters left out (empty: nothing to fit).
+    The alignment moves rotations and translations at their own rates and no displacements."""
+    s = problem.settings
+    if stage.coarse:
+        groups = [(("global_orient", "pose"), s.lr_align_rotation), (("transl",), s.lr_align_translation),
+                  (("betas",), s.lr_betas)]
+    elif stage.geometry:
+        groups = [(PER_FRAME, s.lr_geometry), (("betas",), s.lr_betas), (("displacement",), s.lr_displacement)]
+    else:
+        groups = []
+    if stage.appearance:
+        groups.append((APPEARANCE, s.lr_appearance))
+    result = []
+    for names, lr in groups:
+        parameters = [getattr(problem.avatar, name) for name in names if name not in problem.frozen]
+        if parameters:
+            result.append({"params": parameters, "lr": lr})
+    return result
+
+
+class StageRun:
+    """Steps of one stage over a problem; `optimiser_state` resumes a stage stopped midway."""
+
+    def __init__(self, problem: FitProblem, stage: Stage, state: FitState, generator: torch.Generator,
+                 optimiser_state=None):
+        self.problem, self.stage, self.state, self.generator = problem, stage, state, generator
+        groups = parameter_groups(problem, stage)
+        self.optimiser = torch.optim.Adam(groups) if groups else None
+        if self.optimiser is not None and optimiser_state is not None:
+            self.optimiser.load_state_dict(optimiser_state)
+        self.last_good = self._snapshot()
+        self.best_loss = math.inf
+
+    @property
+    def has_work(self) -> bool:
+        """False when every parameter this stage moves is frozen."""
+        return self.optimiser is not None and self.stage.steps > 0
+
+    @property
+    def finished(self) -> bool:
+        return self.state.step >= self.stage.steps
+
+    def shadows(self) -> bool:
+        return self.stage.appearance and self.state.shadows.on
+
+    def next_batch(self) -> torch.Tensor:
+        """Every frame in a full-batch stage; otherwise the next frames of a shuffled epoch."""
+        count, device = len(self.problem.frames), self.problem.device
+        if self.stage.full_batch:
+            return torch.arange(count, device=device)
+        if not self.state.order:
+            self.state.order = torch.randperm(count, generator=self.generator).tolist()
+        size = self.problem.settings.batch_size
+        batch, self.state.order = self.state.order[:size], self.state.order[size:]
+        return torch.tensor(batch, device=device)
+
+    def energy(self, batch, backward=True):
+        """(loss, terms) over `batch`, rendered in chunks whose gradients add up."""
+        chunk_size = ALIGN_CHUNK_FRAMES if self.stage.coarse else self.problem.settings.batch_size
+        loss, terms = 0.0, {}
+        for chunk in batch.split(chunk_size):
+            share = len(chunk) / len(batch)
+            part, part_terms = batch_energy(self.problem, self.stage, chunk, self.shadows(), self.generator)
+            if backward and torch.isfinite(part):
+                (part * share).backward()
+            loss = loss + float(part.detach()) * share
+            terms = {name: terms.get(name, 0.0) + value * share for name, value in part_terms.items()}
+        return loss, terms
+
+    def step(self) -> StepResult:
+        """One Adam step; a non-finite loss or parameter, or a full-batch loss that rose past
+        DIVERGENCE_FACTOR times its best, is undone (back to the last snapshot, learning rates
+        halved) and reported as the result's event."""
+        batch = self.next_batch()
+        self.optimiser.zero_grad(set_to_none=True)
+        loss, terms = self.energy(batch)
+        if math.isfinite(loss):
+            self._mask_frozen_gradients()
+            self._lazy_step(batch)
+        diverged = self.stage.full_batch and loss > DIVERGENCE_FACTOR * self.best_loss  # full batches compare
+        self.best_loss = min(self.best_loss, loss) if math.isfinite(loss) else self.best_loss
+        self.state.step += 1
+        if not math.isfinite(loss) or not self._finite() or diverged:
+            self._restore(self.last_good)
+            for group in self.optimiser.param_groups:
+                group["lr"] *= 0.5
+            problem = f"loss rose to {loss:.4g} from {self.best_loss:.4g}" if diverged else "non-finite loss"
+            event = f"{problem} at {self.stage.name} step {self.state.step - 1}: rolled back, learning rates halved"
+            self.state.events.append(event)
+            return StepResult(loss, terms, event)
+        if self.state.step % ROLLBACK_EVERY == 0:
+            self.last_good = self._snapshot()
+        self.state.history.append({"stage": self.stage.name, "step": self.state.step, "loss": loss, **terms})
+        return StepResult(loss, terms)
+
+    def _lazy_step(self, batch):
+        """Adam step that leaves the per-frame parameters of frames outside the batch untouched,
+        values and moments alike (otherwise stale momentum keeps moving them: a "lazy" Adam)."""
+        avatar = self.problem.avatar
+        outside = torch.ones(avatar.pose.shape[0], dtype=torch.bool, device=batch.device)
+        outside[batch] = False
+        if not outside.any():
+            self.optimiser.step()
+            return
+        saved = []
+        for name in PER_FRAME:
+            parameter = getattr(avatar, name)
+            moments = self.optimiser.state.get(parameter, {})
+            saved.append((parameter, parameter.data[outside].clone(),
+                          {k: v[outside].clone() for k, v in moments.items() if torch.is_tensor(v) and v.dim() > 0}))
+        self.optimiser.step()
+        for parameter, values, moments in saved:
+            parameter.data[outside] = values
+            for key, value in moments.items():
+                self.optimiser.state[parameter][key][outside] = value
+
+    def _mask_frozen_gradients(self):
+        """The wrist is no joint without a forearm: its rotation gets no update in hand mode."""
+        avatar = self.problem.avatar
+        if avatar.pose.grad is not None:
+            avatar.pose.grad *= avatar.pose_mask
+
+    def _finite(self):
+        return all(bool(torch.isfinite(p).all()) for p in self.problem.avatar.parameters())
+
+    def _snapshot(self):
+        optimiser = None if self.optimiser is None else copy.deepcopy(self.optimiser.state_dict())
+        return copy.deepcopy(self.problem.avatar.state_dict()), optimiser
+
+    def _restore(self, snapshot):
+        learning_rates = [group["lr"] for group in self.optimiser.param_groups]
+        self.problem.avatar.load_state_dict(snapshot[0])
+        self.optimiser.load_state_dict(snapshot[1])
+        for group, lr in zip(self.optimiser.param_groups, learning_rates):
+            group["lr"] = lr
