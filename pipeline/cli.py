@@ -29,9 +29,30 @@ def _fit(args):
     from .fit import fit
     from .fit.outputs import metrics_line
 
+    observers = []
+    if args.curve:
+        from .evaluate.curve import CurveRecorder
+
+        observers.append(CurveRecorder(args.out))
     report = fit(args.sequence, args.out, preset=args.preset, resume=args.resume, progress=args.progress,
-                 device=args.device, shadows=args.shadows, hold_out_every=args.hold_out_every)
+                 device=args.device, shadows=args.shadows, hold_out_every=args.hold_out_every,
+                 known_appearance=args.known_appearance, observers=observers)
     print(f"wrote {args.out} in {report['total_seconds']:.0f} s: {metrics_line(report['metrics'])}")
+
+
+def _plot(args):
+    from .evaluate.plot import plot_curves
+
+    print(f"wrote {plot_curves(args.fits, args.out, title=args.title)}")
+
+
+def _study(args):
+    from .evaluate.study import run_study
+
+    study = run_study(args.dataset, args.out, clips=args.clips, quick=args.quick, preset=args.preset,
+                      sections=tuple(args.sections.split(",")), progress=args.progress,
+                      runtime_presets=tuple(args.runtime_presets.split(",")))
+    print(f"wrote {Path(args.out) / 'study.md'} ({study['seconds'] / 60:.0f} min)")
 
 
 def _evaluate(args):
@@ -98,7 +119,35 @@ def build_parser():
     fit.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
     fit.add_argument("--hold-out-every", type=int, default=None, metavar="N",
                      help="leave every N-th frame out of the fit, for harp evaluate")
+    fit.add_argument("--curve", action="store_true",
+                     help="record the error against fitting time in AVATAR/curve.json (see harp plot)")
+    fit.add_argument("--known-appearance", default=None, metavar="AVATAR",
+                     help="take shape, displacements, textures and light from this finished fit of the same "
+                          "hand, frozen, and fit only the per-frame poses (HARP-known)")
     fit.set_defaults(run=_fit)
+
+    plot = commands.add_parser("plot", help="draw error against fitting time for fits recorded with --curve")
+    plot.add_argument("fits", nargs="+", help="avatar folders with a curve.json")
+    plot.add_argument("--out", default="curves.png", help="PNG to write (default: curves.png)")
+    plot.add_argument("--title", default=None)
+    plot.set_defaults(run=_plot)
+
+    study = commands.add_parser("study", help="pose-refinement study, error against run time and stability "
+                                              "sweep over a folder of synthetic clips")
+    study.add_argument("dataset", help="folder of synthetic clips (as synth/dataset.py writes them)")
+    study.add_argument("--out", required=True, help="study folder (rerun to resume: finished work is kept)")
+    study.add_argument("--clips", default=None, metavar="PATTERNS",
+                       help="comma-separated shell patterns of clip names, e.g. 'small-*,medium-light_*'")
+    study.add_argument("--quick", action="store_true", help="a small version for CI: stages capped, short sweep")
+    study.add_argument("--preset", choices=("fast", "balanced", "full"), default="fast",
+                       help="preset of the refinement fits (default: fast)")
+    study.add_argument("--sections", default="refinement,runtime,stability",
+                       help="which parts to run (default: refinement,runtime,stability)")
+    study.add_argument("--runtime-presets", default="fast,balanced,full",
+                       help="presets compared in the run-time section (default: fast,balanced,full)")
+    study.add_argument("--progress", choices=("bar", "jsonl", "none"), default="none",
+                       help="progress of each fit (default: none; the study logs each run)")
+    study.set_defaults(run=_study)
 
     evaluate = commands.add_parser("evaluate", help="score a fit: held-out frames; albedo and poses against the truth")
     evaluate.add_argument("fit", help="avatar folder written by harp fit")

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from exact_clips import write_clip
+from pipeline.evaluate.exact_clips import write_clip
 from pipeline.cli import main
 from pipeline.init import initialise_sequence
 from pipeline.formats import initial_estimate as ie

@@ -2,7 +2,7 @@
 hyper-extended fingers (past the joint limits), a hand a third out of the frame, a hand 30 px
 tall, every regularisation weight x100 and x0.01, every learning rate x10.
 
-Clips are exact renders of ground-truth parameters (tests/exact_clips.py, 4 frames, 64 px;
+Clips are exact renders of ground-truth parameters (pipeline/evaluate/exact_clips.py, 4 frames, 64 px;
 96 px for the tiny hand), started from `harp init --init gt-noise` (10 degrees on every joint,
 1 cm on the wrist), 10 steps per stage: these check that nothing breaks (NaN, a crash, a hand
 that runs off), not accuracy. Measured silhouette IoU, worst frame: initial estimate 0.59 -
@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 
-from exact_clips import fraction_outside, write_clip
+from pipeline.evaluate.exact_clips import fraction_outside, hyperextended_pose, write_clip
 from pipeline import metrics
 from pipeline.fit import fitting
 from pipeline.init import initialise_sequence
@@ -25,23 +25,13 @@ from pipeline.formats.initial_estimate import read_initial_estimate
 from pipeline.handmodel.anatomy import default_joint_limits
 from pipeline.handmodel.lbs import HandModel
 from pipeline.render.renderer import RenderMesh, render
-from synth.motions import FIST, OPEN, RELAXED
+from synth.motions import FIST, RELAXED
 
 FIT = dict(progress="none", max_steps=10, texture_size=64, batch_size=2, shadows="off")
 IOU_FLOOR = 0.6          # every frame, after the fit
 NOT_WEIGHTED = ("silhouette", "photometric")   # the data terms; the rest is regularisation
 
 pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("one_torch_thread")]
-
-
-def hyperextended():
-    """Open hand bent backwards 10 - 20 degrees past the limits: MCPs 45 degrees dorsal (limit
-    30), PIPs 20 (limit 5), DIPs 25 (limit 15), thumb IP 35 (limit 20)."""
-    pose = OPEN.copy()
-    for mcp, pip, dip in ((1, 2, 3), (4, 5, 6), (7, 8, 9), (10, 11, 12)):
-        pose[mcp, 0], pose[pip, 0], pose[dip, 0] = np.radians([-45, -20, -25])
-    pose[15, 0] = np.radians(-35)
-    return pose
 
 
 def make_clip(tmp_path_factory, name, pose, **options):
@@ -111,7 +101,7 @@ def test_fist(tmp_path_factory, tmp_path):
 
 
 def test_hyperextended_fingers(tmp_path_factory, tmp_path):
-    folder = make_clip(tmp_path_factory, "hyper", hyperextended(), size=64, azimuth=70)
+    folder = make_clip(tmp_path_factory, "hyper", hyperextended_pose(), size=64, azimuth=70)
     gt = seq.read_ground_truth(folder / seq.GT_FILE)
     past = np.degrees(default_joint_limits()[..., 0] - gt.pose)   # degrees beyond the extension limits
     assert (past[:, [1, 4, 7, 10], 0] >= 15 - 1e-9).all() and (past[:, 15, 0] >= 15 - 1e-9).all()

@@ -102,6 +102,8 @@ def _set_up(sequence, preset, device, shadows, max_steps, hold_out_every, known_
     frames = select_frames(initial.frame_count, settings.max_frames, exclude=held_out)
     shared = {}
     if known_appearance is not None:
+        if not (Path(known_appearance) / CHECKPOINT_FILE).is_file():
+            raise FitError(f"known appearance: {known_appearance} is not a fit folder (no {CHECKPOINT_FILE})")
         known = load_checkpoint(Path(known_appearance) / CHECKPOINT_FILE, device)
         if known.state.stage < len(known.settings.stages()):
             raise FitError(f"the fit in {known_appearance} has not finished: resume it first")
@@ -186,7 +188,10 @@ class _FitClock:
 
     def observe(self, observers, event, problem):
         if observers:
-            self.charge()
+            if event == "start":
+                self._lap()      # nothing has been fitted yet: the first point is at fit time 0
+            else:
+                self.charge()
             for observer in observers:
                 getattr(observer, event)(problem, self.state)
             self.state.measure_seconds += self._lap()

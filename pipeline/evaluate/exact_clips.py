@@ -1,6 +1,6 @@
 """Tiny sequence folders rendered with the project's own renderer from exact ground truth (no
-Blender, well under a second each): for tests that need a particular pose, framing or hand
-size. The hand is the right hand-only model with the average shape unless `betas` are given,
+Blender, well under a second each): for tests and the study's stability sweep, which need a
+particular pose, framing or hand size. The hand is the right hand-only model with the average shape unless `betas` are given,
 seen from the back with the fingers up (synth's viewpoint convention), turning a little about
 its long axis from frame to frame; a point light near the camera and a mottled skin albedo.
 
@@ -13,15 +13,28 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from pipeline.formats import sequence_folder as seq
-from pipeline.formats.camera import project
-from pipeline.handmodel.lbs import HandModel
-from pipeline.render.renderer import Appearance, Light, RenderMesh, render
 from synth.viewpoint import place_hand, view_rotation
+
+from ..formats import sequence_folder as seq
+from ..formats.camera import project
+from ..handmodel.lbs import HandModel
+from ..render.renderer import Appearance, Light, RenderMesh, render
 
 BACKGROUND = (0.25, 0.27, 0.3)
 TURN_DEGREES = 12.0      # rotation about the hand's long axis between frames
 AMBIENT = 0.6
+
+
+def hyperextended_pose():
+    """Open hand bent backwards 10 - 20 degrees past the joint limits (a stress case): MCPs 45
+    degrees dorsal (limit 30), PIPs 20 (limit 5), DIPs 25 (limit 15), thumb IP 35 (limit 20)."""
+    from synth.motions import OPEN
+
+    pose = OPEN.copy()
+    for mcp, pip, dip in ((1, 2, 3), (4, 5, 6), (7, 8, 9), (10, 11, 12)):
+        pose[mcp, 0], pose[pip, 0], pose[dip, 0] = np.radians([-45, -20, -25])
+    pose[15, 0] = np.radians(-35)
+    return pose
 
 
 def mottled_albedo(size=128, seed=0):
@@ -76,7 +89,7 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
                         background=torch.tensor(BACKGROUND, dtype=torch.float64))
     info = seq.SequenceInfo(fps=30.0, width=size, height=size, frame_count=frames, hand_side="right", K=K,
                             ground_truth=seq.GT_FILE, albedo=seq.GT_ALBEDO_FILE,
-                            metadata={"generator": "tests/exact_clips.py", "distance_m": distance})
+                            metadata={"generator": "pipeline/evaluate/exact_clips.py", "distance_m": distance})
     for index in range(frames):
         seq.write_png(seq.frame_path(folder, info, index), _to_uint8(images["rgb"][index].numpy()))
         seq.write_png(seq.mask_path(folder, info, index), np.where(images["alpha"][index, ..., 0].numpy() >= 0.5,
@@ -86,7 +99,7 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
     seq.write_ground_truth(folder / seq.GT_FILE, seq.GroundTruth(
         mode="hand", side="right", betas=betas, global_orient=global_orient, transl=transl, pose=pose,
         keypoints3d=keypoints3d, keypoints2d=keypoints2d, vertices=out.vertices.numpy(),
-        light={"preset": "tests/exact_clips.py", "position": [0.1, -0.2, 0.0], "ambient": AMBIENT}))
+        light={"preset": "pipeline/evaluate/exact_clips.py", "position": [0.1, -0.2, 0.0], "ambient": AMBIENT}))
     seq.write_png(folder / seq.GT_ALBEDO_FILE, _to_uint8(albedo.transpose(1, 2, 0)))
     seq.write_sequence_info(folder, info)
     return info

@@ -1,0 +1,152 @@
+"""What a study writes: study.json, study.md (its tables, in the study's order) and plots/
+(the four refinement cases per motion as bars, each clip's refinement curves, the presets'
+curves). matplotlib is imported only where the plots are drawn."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from .plot import plot_curves
+
+STUDY_FILE, STUDY_JSON, PLOTS = "study.md", "study.json", "plots"
+
+
+def write_outputs(out, study):
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    sections = study["sections"]
+    plots = {}
+    if "refinement" in sections:
+        plots["refinement_bars"] = refinement_bars(sections["refinement"], out / PLOTS / "refinement.png")
+        plots["refinement_curves"] = refinement_curves(sections["refinement"], out)
+    if "runtime" in sections:
+        runtime = sections["runtime"]
+        folders = list(runtime["fits"].values())
+        targets = {name: value for name, value in runtime["targets"].items()}
+        plots["runtime"] = str(plot_curves(folders, out / PLOTS / f"runtime_{runtime['clip']}.png",
+                                           figures=("l1_mean", "joint_mm", "psnr_mean", "vertex_mm"),
+                                           labels=list(runtime["fits"]), targets=targets,
+                                           title=f"error against fitting time: {runtime['clip']}"))
+    study["plots"] = {name: str(Path(path).relative_to(out)) if isinstance(path, (str, Path)) else
+                      {k: str(Path(v).relative_to(out)) for k, v in path.items()} for name, path in plots.items()}
+    (out / STUDY_JSON).write_text(json.dumps(study, indent=1))
+    (out / STUDY_FILE).write_text(markdown(study))
+    return out / STUDY_FILE
+
+
+def _number(value, digits=2):
+    return "–" if value is None else f"{value:.{digits}f}"
+
+
+def markdown(study):
+    lines = [f"# Study of {study['dataset']}", "",
+             f"Preset `{study['preset']}`{' (quick: stages capped)' if study['quick'] else ''}; "
+             f"{study['seconds'] / 60:.0f} min in all. Fit options: {study['fit_options'] or 'none'}.", ""]
+    sections = study["sections"]
+    if "refinement" in sections:
+        lines += _refinement_tables(sections["refinement"])
+    if "runtime" in sections:
+        lines += _runtime_table(sections["runtime"])
+    if "stability" in sections:
+        lines += _stability_table(sections["stability"])
+    for name, path in study.get("plots", {}).items():
+        if isinstance(path, dict):
+            continue
+        lines += [f"![{name}]({path})", ""]
+    return "\n".join(lines) + "\n"
+
+
+def _refinement_tables(section):
+    lines = ["## 1. Pose refinement", "",
+             "Every fit starts from `gt-noise` (10 degrees on every joint, 1 cm on the wrist). Errors in mm on the "
+             "fitted frames: joints (21 keypoints) and the model's vertices, Procrustes-aligned (PA) and in the "
+             "camera frame (cam).", "", "### Means", "",
+             "| motion | case | clips | joint PA | vertex PA | joint cam | vertex cam |", "|---|---|---|---|---|---|---|"]
+    for motion, cases in section["means"].items():
+        for case, figures in cases.items():
+            lines.append(f"| {motion} | {case} | {figures['clips']} | {_number(figures['joint_mm'])} | "
+                         f"{_number(figures['vertex_mm'])} | {_number(figures['joint_camera_mm'])} | "
+                         f"{_number(figures['vertex_camera_mm'])} |")
+    lines += ["", "### Per clip", "", "| clip | case | joint PA | vertex PA | joint cam | vertex cam | fit s |",
+              "|---|---|---|---|---|---|---|"]
+    for row in section["rows"]:
+        note = f" ({row['note']})" if row.get("note") else ""
+        lines.append(f"| {row['clip']} | {row['case']}{note} | {_number(row['joint_mm'])} | {_number(row['vertex_mm'])} | "
+                     f"{_number(row['joint_camera_mm'])} | {_number(row['vertex_camera_mm'])} | "
+                     f"{_number(row['fit_seconds'], 0)} |")
+    return lines + [""]
+
+
+def _runtime_table(section):
+    targets = section["targets"]
+    lines = ["## 2. Error against run time", "",
+             f"Clip `{section['clip']}`. Targets: within {section['within']:.0%} of the `{section['reference']}` "
+             f"preset's final figures: L1 {_number(targets.get('l1_mean'), 4)}, joint error "
+             f"{_number(targets.get('joint_mm'))} mm. Seconds of fitting (measuring excluded).", "",
+             "| preset | fit s | final L1 | final joint PA mm | s to L1 target | s to joint target | s to both |",
+             "|---|---|---|---|---|---|---|"]
+    for row in section["table"]:
+        lines.append(f"| {row['preset']} | {_number(row['fit_seconds'], 0)} | {_number(row['final_l1'], 4)} | "
+                     f"{_number(row['final_joint_mm'])} | {_reached(row['seconds_to_l1'])} | "
+                     f"{_reached(row['seconds_to_joint'])} | {_reached(row['seconds_to_both'])} |")
+    return lines + [""]
+
+
+def _reached(seconds):
+    return "not reached" if seconds is None else f"{seconds:.0f}"
+
+
+def _stability_table(section):
+    lines = ["## 3. Stability sweep", "",
+             f"Exact 64 px clips, 4 frames, {section['steps_per_stage']} steps per stage, from `gt-noise`. "
+             f"Every entry finite: {'yes' if section['all_finite'] else 'NO'}.", "",
+             "| kind | case | finished | rollbacks | non-finite events | final loss | joint PA mm (initial) |",
+             "|---|---|---|---|---|---|---|"]
+    for row in section["rows"]:
+        finished = "yes" if row["finished"] else f"no: {row['error']}"
+        lines.append(f"| {row['kind']} | {row['case']} | {finished} | {row['rollbacks']} | {row['non_finite']} | "
+                     f"{_number(row['final_loss'], 4)} | {_number(row['joint_mm'])} "
+                     f"({_number(row['initial_joint_mm'])}) |")
+    return lines + [""]
+
+
+def refinement_bars(section, path):
+    """A bar chart: mean Procrustes-aligned joint error of each case, per motion."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    means = section["means"]
+    motions = list(means)
+    cases = [case for case in section["cases"] if any(case in means[m] for m in motions)]
+    figure, axis = plt.subplots(figsize=(1.6 + 1.4 * len(motions) * len(cases) / 3, 3.6))
+    width = 0.8 / len(cases)
+    for k, case in enumerate(cases):
+        present = [(i, means[m][case]["joint_mm"]) for i, m in enumerate(motions)
+                   if means[m].get(case, {}).get("joint_mm") is not None]
+        bars = axis.bar([i + k * width for i, _ in present], [value for _, value in present], width, label=case,
+                        color=f"C{k}")
+        axis.bar_label(bars, fmt="%.1f", fontsize=7)
+    axis.set_xticks([i + width * (len(cases) - 1) / 2 for i in range(len(motions))], motions)
+    axis.set_ylabel("joint error, Procrustes-aligned (mm)")
+    axis.set_title("pose refinement: mean over clips")
+    axis.legend(fontsize=7)
+    figure.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+    return path
+
+
+def refinement_curves(section, out):
+    """Per clip: the curves of its HARP-sil, HARP-full and HARP-known fits."""
+    paths = {}
+    for clip in sorted({row["clip"] for row in section["rows"]}):
+        folders = [(name, out / "fits" / clip / name) for name in ("sil", "full", "known")]
+        folders = [(name, folder) for name, folder in folders if (folder / "curve.json").is_file()]
+        if folders:
+            paths[clip] = plot_curves([folder for _, folder in folders], out / PLOTS / f"refinement_{clip}.png",
+                                      labels=[f"HARP-{name}" for name, _ in folders], title=clip)
+    return paths
