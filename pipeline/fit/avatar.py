@@ -1,7 +1,13 @@
 """The avatar being fitted: every optimised parameter and the posed, displaced mesh it makes.
 
-    V = LBS_subdivided(pose, shape) + d * n     (method_facts: one scalar per subdivided vertex,
-                                                 along the posed vertex normal)
+    V = LBS_subdivided(T(shape) + d * n_rest, pose)   (one scalar per subdivided vertex, along
+                                                       the normal of the shaped rest surface)
+
+The reference implementation displaces along the *posed* normals after skinning (method_facts);
+we displace the rest surface and then skin it, so that the fitted surface is exactly what a
+linear-blend-skinning rig (Blender's Armature modifier, a game engine) animates: the avatar
+folder's rest mesh posed by the armature reproduces every fitted frame. It is also cheaper:
+the normals are taken once per step, not once per frame.
 Per frame: global rotation, translation, joint rotations (the wrist's only in hand+forearm
 mode). Shared: shape, displacements, albedo texture, normal map, light position, ambient ratio.
 """
@@ -74,11 +80,17 @@ class Avatar(torch.nn.Module):
 
     def posed(self, batch):
         """(vertices (B, V, 3), keypoints (B, K, 3)) of the frames `batch` (indices into the fit's
-        frames), displaced along the posed normals."""
+        frames): the displaced rest surface, skinned."""
         pose = self.pose[batch] * self.pose_mask
-        out = self.model(self.betas, pose, self.global_orient[batch], self.transl[batch])
-        normals = vertex_normals(out.vertices, self.mesh.faces)
-        return out.vertices + self.displacement[None, :, None] * normals, out.keypoints
+        out = self.model(self.betas, pose, self.global_orient[batch], self.transl[batch],
+                         rest_vertices=self.displaced_rest())
+        return out.vertices, out.keypoints
+
+    def displaced_rest(self):
+        """(V, 3) the personal rest surface: the shaped template displaced along its normals."""
+        vertices, _, _ = self.model.shaped(self.betas)
+        normals = vertex_normals(vertices[None], self.mesh.faces)[0]
+        return vertices + self.displacement[:, None] * normals
 
     def posed_coarse(self, batch):
         """(vertices, keypoints) of the unsubdivided model without displacements: the alignment's
@@ -88,8 +100,6 @@ class Avatar(torch.nn.Module):
         return out.vertices, out.keypoints
 
     def rest_mesh(self):
-        """Personalised rest vertices (V, 3): shape applied, displaced along the rest normals."""
+        """Personalised rest vertices (V, 3), detached: what the avatar folder's rig holds."""
         with torch.no_grad():
-            vertices, _, _ = self.model.shaped(self.betas)
-            normals = vertex_normals(vertices[None], self.mesh.faces)[0]
-            return vertices + self.displacement[:, None] * normals
+            return self.displaced_rest()

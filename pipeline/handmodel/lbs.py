@@ -112,7 +112,10 @@ class HandModel(torch.nn.Module):
         translation = torch.stack(world_translation, dim=1)
         return torch.cat([rotation, translation[..., None]], dim=-1)
 
-    def forward(self, betas=None, pose=None, global_orient=None, transl=None):
+    def forward(self, betas=None, pose=None, global_orient=None, transl=None, rest_vertices=None):
+        """Posed vertices, joints and keypoints (HandOutput) of B frames. `rest_vertices` (V, 3)
+        replace the shaped template as the surface that is skinned (e.g. with personal offsets);
+        joints and keypoints always follow `betas`."""
         dtype, device = self.v_template.dtype, self.v_template.device
         batch = next((t.shape[0] for t in (pose, global_orient, transl) if t is not None),
                      betas.shape[0] if betas is not None and betas.dim() == 2 else 1)
@@ -127,6 +130,8 @@ class HandModel(torch.nn.Module):
         pose = pose.to(dtype).reshape(batch, 16, 3)
         global_orient, transl = global_orient.to(dtype), transl.to(dtype)
         vertices, joints, keypoints = self.shaped(betas)
+        if rest_vertices is not None:
+            vertices = rest_vertices.to(dtype)
         transforms = self.bone_transforms(joints, pose, global_orient, transl)
         blended = torch.einsum("vj,bjk->bvk", self.weights, transforms.reshape(batch, -1, 12)).reshape(batch, -1, 3, 4)
         posed = (blended[..., :3] * vertices.expand(batch, -1, -1)[..., None, :]).sum(-1) + blended[..., 3]
