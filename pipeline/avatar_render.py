@@ -16,17 +16,14 @@ from .render.renderer import Appearance, Light, RenderMesh, render
 
 
 def load_avatar(folder, device=None):
-    """(HandModel of the personalised rig, Appearance, description dict) of an avatar folder."""
-    folder = Path(folder)
-    description = av.read_avatar_json(folder)
-    rig = fmt.load_hand_model(folder / av.RIG_FILE)
-    albedo = cv2.imread(str(folder / av.ALBEDO_FILE), cv2.IMREAD_COLOR)
-    normal = cv2.imread(str(folder / av.NORMAL_FILE), cv2.IMREAD_COLOR)
+    """(HandModel of the personalised rig, Appearance, AvatarFiles) of an avatar folder."""
+    files = av.read_avatar_folder(folder)
+    albedo, normal = (cv2.imread(str(path), cv2.IMREAD_COLOR) for path in (files.albedo, files.normal_map))
     if albedo is None or normal is None:
         raise av.AvatarFolderError(f"{folder} lacks a readable {av.ALBEDO_FILE} or {av.NORMAL_FILE}")
     albedo = torch.as_tensor(albedo[:, :, ::-1] / 255.0, dtype=torch.float32, device=device).permute(2, 0, 1)
     normal = torch.as_tensor(av.decode_normal_map(normal[:, :, ::-1]), dtype=torch.float32, device=device).permute(2, 0, 1)
-    return HandModel(rig, device=device), Appearance(albedo.contiguous(), normal.contiguous()), description
+    return HandModel(files.rig, device=device), Appearance(albedo.contiguous(), normal.contiguous()), files
 
 
 def view_orientation(azimuth_deg, elevation_deg):
@@ -43,12 +40,11 @@ def render_avatar(folder, out, pose="rest", frame=None, azimuth=0.0, elevation=0
                   shadows=None, background=(0.2, 0.2, 0.2)):
     """Render the avatar to `out` (PNG): a named pose (or the fitted pose of `frame`), seen from
     azimuth/elevation (degrees), lit by its fitted light or `light` (camera frame, metres)."""
-    model, appearance, description = load_avatar(folder)
+    model, appearance, files = load_avatar(folder)
     if frame is not None:
-        poses = av.read_poses(folder)
-        if not 0 <= frame < len(poses["frames"]):
-            raise av.AvatarFolderError(f"frame {frame} is not in the avatar (it has {len(poses['frames'])})")
-        joint_pose = torch.as_tensor(poses["pose"][frame], dtype=torch.float32)
+        if not 0 <= frame < len(files.poses):
+            raise av.AvatarFolderError(f"frame {frame} is not in the avatar (it has {len(files.poses)})")
+        joint_pose = torch.as_tensor(files.poses.pose[frame], dtype=torch.float32)
     else:
         if pose not in NAMED_POSES:
             raise ValueError(f"unknown pose {pose!r}; choose one of {sorted(NAMED_POSES)}")
@@ -68,7 +64,7 @@ def render_avatar(folder, out, pose="rest", frame=None, azimuth=0.0, elevation=0
         K = torch.tensor([[focal, 0, size / 2], [0, focal, size / 2], [0, 0, 1.0]])
         light_position = torch.tensor(light if light is not None else [0.3 * distance, -0.4 * distance, 0.2 * distance],
                                       dtype=torch.float32)
-        fitted = description.get("light", {})
+        fitted = files.description.get("light", {})
         ambient = torch.tensor(float(fitted.get("ambient", 0.6)))
         use_shadows = fitted.get("shadows", False) if shadows is None else shadows
         images = render(vertices, RenderMesh.from_model_data(model.data), K, size, size, outputs=("rgb",),

@@ -12,8 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.formats.camera import intrinsics_from_fov
-
-from .rotations import axis_angle_to_matrix, matrix_to_axis_angle
+from pipeline.formats.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 
 HARP_FOCAL_AT_448 = 2000.0  # pixels (method facts); scaled with the image width by default
 

@@ -30,7 +30,7 @@ def test_fit_writes_a_complete_avatar(tiny_clip, tmp_path):
     np.testing.assert_allclose(vertices, rig.vertices, atol=1e-6)
     assert np.array_equal(faces, rig.faces) and np.array_equal(faces_uv, rig.faces_uv)
     poses = av.read_poses(out)
-    assert poses["pose"].shape == (4, 16, 3) and np.all(poses["pose"][:, 0] == 0)  # hand mode: no wrist joint
+    assert poses.pose.shape == (4, 16, 3) and np.all(poses.pose[:, 0] == 0)  # hand mode: no wrist joint
     for name in (av.ALBEDO_FILE, av.NORMAL_FILE, "fit_grid.png", "overlay.mp4", "report.json"):
         assert (out / name).is_file(), name
     scores = report["metrics"]
@@ -161,4 +161,4 @@ def test_alignment_in_chunks_equals_one_batch(tiny_clip, tmp_path, monkeypatch):
     chunked = fitting.fit(tiny_clip, tmp_path / "chunked", **options)
     assert whole["final_losses"]["align"]["loss"] == pytest.approx(chunked["final_losses"]["align"]["loss"], rel=1e-4)
     first, second = (av.read_poses(tmp_path / name) for name in ("whole", "chunked"))
-    assert np.allclose(first["pose"], second["pose"], atol=1e-5)
+    assert np.allclose(first.pose, second.pose, atol=1e-5)

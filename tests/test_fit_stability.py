@@ -86,7 +86,7 @@ def fit_and_check(folder, out, iou_floor=IOU_FLOOR, must_improve=True, **overrid
     assert set(report["final_losses"]) == {"align", "geometry", "geometry+appearance", "appearance"}
     assert json.loads((out / "report.json").read_text())["metrics"] == scores
     poses = av.read_poses(out)
-    assert all(np.isfinite(poses[name]).all() for name in ("global_orient", "transl", "pose"))
+    assert all(np.isfinite(getattr(poses, name)).all() for name in ("global_orient", "transl", "pose"))
     assert np.isfinite(av.read_avatar_json(out)["betas"]).all()
     iou = np.array(scores["silhouette_iou"])
     start = initial_iou(folder)

@@ -10,7 +10,8 @@ from pipeline.handmodel import mirror
 from pipeline.handmodel.anatomy import default_joint_limits
 from pipeline.handmodel.lbs import HandModel
 from pipeline.handmodel.rotations import axis_angle_to_matrix as torch_axis_angle_to_matrix
-from synth import appearance, identity, motions, rotations, uv_raster, viewpoint
+from pipeline.formats import rotations
+from synth import appearance, identity, motions, uv_raster, viewpoint
 
 
 @pytest.fixture(scope="module")

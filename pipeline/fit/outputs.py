@@ -13,9 +13,7 @@ import torch
 
 from .. import metrics
 from ..formats import avatar_folder as av
-from ..formats import hand_model_file as fmt
 from ..formats.fit_report import HELD_OUT_FRAMES, write_report
-from ..formats.sequence_folder import write_png
 from ..render.renderer import render
 
 GRID_FILE = "fit_grid.png"
@@ -101,29 +99,27 @@ def write_outputs(out, problem, state, held_out=()):
 def _write_avatar(out, problem, state, shadows):
     avatar, clip, settings = problem.avatar, problem.clip, problem.settings
     model_data = avatar.model.data
-    rest = avatar.rest_mesh().cpu().numpy().astype(np.float64)
     betas = avatar.betas.detach().cpu().numpy().astype(np.float64)
-    joints = model_data.joints + model_data.joint_shapedirs @ betas
-    keypoints = model_data.keypoints + model_data.keypoint_shapedirs @ betas
-    rig = dataclasses.replace(model_data, vertices=rest, joints=joints, keypoints=keypoints,
+    rig = dataclasses.replace(model_data, vertices=avatar.rest_mesh().cpu().numpy().astype(np.float64),
+                              joints=model_data.joints + model_data.joint_shapedirs @ betas,
+                              keypoints=model_data.keypoints + model_data.keypoint_shapedirs @ betas,
                               metadata={**model_data.metadata, "betas_baked_in": betas.tolist()})
-    fmt.save_hand_model(rig, out / av.RIG_FILE)
-    av.write_obj(out / av.MESH_FILE, rest, model_data.faces, model_data.uvs, model_data.faces_uv)
-    albedo = (avatar.albedo.detach().clamp(0, 1).cpu().numpy().transpose(1, 2, 0) * 255).round().astype(np.uint8)
-    write_png(out / av.ALBEDO_FILE, albedo)
     normals = torch.nn.functional.normalize(avatar.normal_map.detach(), dim=0).cpu().numpy().transpose(1, 2, 0)
-    write_png(out / av.NORMAL_FILE, av.encode_normal_map(normals))
-    av.write_poses(out, avatar.global_orient.detach().cpu().numpy(), avatar.transl.detach().cpu().numpy(),
-                   (avatar.pose * avatar.pose_mask).detach().cpu().numpy(), clip.frames)
-    av.write_avatar_json(out, {
+    poses = av.AvatarPoses(*(value.detach().cpu().numpy() for value in
+                             (avatar.global_orient, avatar.transl, avatar.pose * avatar.pose_mask)), clip.frames)
+    description = {
         "mode": model_data.mode, "side": model_data.side, "betas": betas.tolist(),
         "light": {"position": avatar.light_position.detach().cpu().tolist(), "ambient": avatar.ambient.item(),
                   "shadows": shadows},
         "camera": {"K": clip.K.cpu().tolist(), "width": clip.width, "height": clip.height},
+        "footage": {"sequence": str(problem.sequence.resolve()), "fps": clip.info.fps,
+                    "frame_count": clip.info.frame_count, "width": clip.info.width, "height": clip.info.height},
         "settings": {k: v for k, v in vars(settings).items() if k != "weights"} | {"weights": settings.weights},
         "stage_seconds": state.stage_seconds, "perceptual_term": problem.perceptual_name,
         "initialisation": problem.initial.source,
-    })
+    }
+    albedo = _to_uint8(avatar.albedo.detach().permute(1, 2, 0))
+    av.write_avatar_folder(out, av.AvatarFiles(description, rig, poses, albedo, av.encode_normal_map(normals)))
 
 
 def _to_uint8(image):

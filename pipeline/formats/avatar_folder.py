@@ -1,34 +1,106 @@
-"""The avatar folder: what a fit produces and the Blender add-on binds (numpy only; one home).
+"""The avatar folder: what a fit produces, `harp render` poses and the Blender add-on binds
+(numpy and the standard library only; one home of the format).
 
-    avatar.json    format + version, mode (hand / arm), side, shape vector, light, settings used,
-                   per-stage timings and final losses
-    albedo.png     albedo texture, 8-bit sRGB-less linear values, in the model's UV layout (v up)
+    avatar.json    format + version, mode (hand / arm), side, shape vector, light, camera (K,
+                   width, height of the fitted images), settings used, per-stage timings
+    albedo.png     albedo texture, 8-bit display values (the fit treats the frames' 8-bit values
+                   as linear), in the model's UV layout (v up)
     normal.png     tangent-space normal map, 8-bit, (n + 1) / 2 per channel
     mesh.obj       the personalised rest mesh (shape and displacements applied), with UVs
-    rig.npz        a hand-model file (pipeline/formats/hand_model_file.py) of that rest mesh:
-                   vertices, faces, UVs, skinning weights, joints, frames, limits; betas are baked
-                   in, so posing it with zero betas gives the person
-    poses.npz      per-frame global_orient (F, 3), transl (F, 3), pose (F, 16, 3), frame indices
+    rig.npz        a hand-model file (formats/hand_model_file.py) of that rest mesh: vertices,
+                   faces, UVs, skinning weights, joints, frames, limits; betas are baked in, so
+                   posing it with zero betas by linear blend skinning gives the fitted surface
+    poses.npz      per-frame global_orient (F, 3), transl (F, 3), pose (F, 16, 3) and the
+                   sequence frame index of each (F,), with a format header
+
+Version 2: the fitted surface is the rig's rest mesh skinned (displacements before skinning),
+and poses.npz has a header. Folders of version 1 are refused with one line.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
 import numpy as np
 
+from . import hand_model_file as fmt
+from .npz_file import read_npz, write_npz
+from .png_file import PngError, check_png, write_png
+
 FORMAT_NAME = "harp-avatar"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+POSES_FORMAT = "harp-avatar-poses"
 AVATAR_FILE = "avatar.json"
 ALBEDO_FILE = "albedo.png"
 NORMAL_FILE = "normal.png"
 MESH_FILE = "mesh.obj"
 RIG_FILE = "rig.npz"
 POSES_FILE = "poses.npz"
+POSE_ARRAYS = ("global_orient", "transl", "pose", "frames")
 
 
 class AvatarFolderError(ValueError):
     """An avatar folder is missing, incomplete or inconsistent (one-line message)."""
+
+
+@dataclasses.dataclass
+class AvatarPoses:
+    global_orient: np.ndarray   # (F, 3) axis-angle, model -> camera
+    transl: np.ndarray          # (F, 3) metres, camera frame
+    pose: np.ndarray            # (F, 16, 3) local axis-angle per joint
+    frames: np.ndarray          # (F,) sequence frame indices
+
+    def __len__(self):
+        return len(self.frames)
+
+
+@dataclasses.dataclass
+class AvatarFiles:
+    """An avatar folder's content (images as 8-bit arrays when written; as checked paths when
+    read, for readers that load pixels their own way: Blender, OpenCV)."""
+
+    description: dict                # avatar.json without format and version
+    rig: fmt.HandModelData
+    poses: AvatarPoses
+    albedo: np.ndarray | Path        # (T, T, 3) uint8 RGB, or the checked albedo.png
+    normal_map: np.ndarray | Path    # (T, T, 3) uint8 encoded normals, or the checked normal.png
+
+
+def write_avatar_folder(folder, avatar: AvatarFiles) -> Path:
+    """Write every file of the avatar folder (the rest mesh also as mesh.obj)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    fmt.save_hand_model(avatar.rig, folder / RIG_FILE)
+    write_obj(folder / MESH_FILE, avatar.rig.vertices, avatar.rig.faces, avatar.rig.uvs, avatar.rig.faces_uv)
+    write_png(folder / ALBEDO_FILE, np.asarray(avatar.albedo, np.uint8))
+    write_png(folder / NORMAL_FILE, np.asarray(avatar.normal_map, np.uint8))
+    write_poses(folder, avatar.poses)
+    write_avatar_json(folder, avatar.description)
+    return folder
+
+
+def read_avatar_folder(folder) -> AvatarFiles:
+    """Every file of an avatar folder, checked: the format version, the rig, poses that fit the
+    rig, intact PNGs. Any problem is one AvatarFolderError line."""
+    folder = Path(folder)
+    description = read_avatar_json(folder)
+    try:
+        rig = fmt.load_hand_model(folder / RIG_FILE)
+    except fmt.HandModelFileError as error:
+        raise AvatarFolderError(f"{folder}: {error}") from None
+    poses = read_poses(folder)
+    if rig.mode != description.get("mode"):
+        raise AvatarFolderError(f"{folder}: {RIG_FILE} ({rig.mode} mode) and {AVATAR_FILE} "
+                                f"({description.get('mode')} mode) disagree")
+    images = []
+    for name in (ALBEDO_FILE, NORMAL_FILE):
+        try:
+            check_png(folder / name)
+        except PngError as error:
+            raise AvatarFolderError(str(error)) from None
+        images.append(folder / name)
+    return AvatarFiles(description, rig, poses, *images)
 
 
 def write_avatar_json(folder, description: dict) -> Path:
@@ -49,29 +121,33 @@ def read_avatar_json(folder) -> dict:
         description = json.loads(path.read_text())
     except json.JSONDecodeError as error:
         raise AvatarFolderError(f"cannot read {path}: {error}") from None
-    if description.get("format") != FORMAT_NAME or description.get("version") != FORMAT_VERSION:
-        raise AvatarFolderError(f"{path} is not a {FORMAT_NAME} file of version {FORMAT_VERSION}")
-    return description
+    if description.get("format") != FORMAT_NAME:
+        raise AvatarFolderError(f"{path} is not a {FORMAT_NAME} file")
+    if description.get("version") != FORMAT_VERSION:
+        raise AvatarFolderError(f"{path} is an avatar folder of version {description.get('version')}; this program "
+                                f"reads version {FORMAT_VERSION}: fit the clip again")
+    return {key: value for key, value in description.items() if key not in ("format", "version")}
 
 
-def write_poses(folder, global_orient, transl, pose, frames) -> Path:
-    path = Path(folder) / POSES_FILE
-    with open(path, "wb") as handle:
-        np.savez_compressed(handle, global_orient=np.asarray(global_orient, np.float64),
-                            transl=np.asarray(transl, np.float64), pose=np.asarray(pose, np.float64),
-                            frames=np.asarray(frames, np.int64))
-    return path
+def write_poses(folder, poses: AvatarPoses) -> Path:
+    arrays = {name: np.asarray(getattr(poses, name), np.int64 if name == "frames" else np.float64)
+              for name in POSE_ARRAYS}
+    return write_npz(Path(folder) / POSES_FILE, {"format": POSES_FORMAT, "version": FORMAT_VERSION}, arrays)
 
 
-def read_poses(folder) -> dict:
+def read_poses(folder) -> AvatarPoses:
     path = Path(folder) / POSES_FILE
     if not path.is_file():
         raise AvatarFolderError(f"missing {path}")
-    with np.load(path, allow_pickle=False) as archive:
-        poses = {name: archive[name] for name in ("global_orient", "transl", "pose", "frames")}
-    count = len(poses["frames"])
-    if poses["pose"].shape != (count, 16, 3) or poses["transl"].shape != (count, 3):
+    _, arrays = read_npz(path, POSES_FORMAT, FORMAT_VERSION, AvatarFolderError, required=POSE_ARRAYS,
+                         what="pose file")
+    poses = AvatarPoses(**arrays)
+    count = len(poses.frames)
+    if poses.pose.shape != (count, 16, 3) or poses.transl.shape != (count, 3) or \
+            poses.global_orient.shape != (count, 3):
         raise AvatarFolderError(f"{path}: inconsistent pose arrays")
+    if not all(np.isfinite(getattr(poses, name)).all() for name in ("global_orient", "transl", "pose")):
+        raise AvatarFolderError(f"{path}: NaN or Inf in the poses")
     return poses
 
 

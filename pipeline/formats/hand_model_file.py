@@ -24,10 +24,11 @@ Conventions (see DESIGN.md):
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import numpy as np
+
+from .npz_file import read_npz, write_npz
 
 FORMAT_NAME = "harp-hand-model"
 FORMAT_VERSION = 1
@@ -178,50 +179,42 @@ _ARRAY_FIELDS = [f.name for f in dataclasses.fields(HandModelData)
 def save_hand_model(data: HandModelData, path) -> Path:
     """Write one mode of the model to `path` (.npz). Validates first."""
     data.validate()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     header = {
         "format": FORMAT_NAME, "version": FORMAT_VERSION, "side": data.side, "mode": data.mode,
         "joint_names": list(data.joint_names), "keypoint_names": list(data.keypoint_names),
         "shape_names": list(data.shape_names), "shape_descriptions": list(data.shape_descriptions),
         "shared_vertex_count": int(data.shared_vertex_count), "metadata": data.metadata,
     }
-    arrays = {name: np.ascontiguousarray(getattr(data, name)) for name in _ARRAY_FIELDS}
-    with open(path, "wb") as handle:  # np.savez would append ".npz" to other suffixes
-        np.savez_compressed(handle, header=np.frombuffer(json.dumps(header, sort_keys=True).encode(), np.uint8),
-                            **arrays)
-    return path
+    return write_npz(path, header, {name: np.ascontiguousarray(getattr(data, name)) for name in _ARRAY_FIELDS})
 
 
 def load_hand_model(path) -> HandModelData:
     """Read and validate a hand-model file written by `save_hand_model`."""
-    path = Path(path)
-    if not path.is_file():
-        raise HandModelFileError(f"hand model file not found: {path}")
+    header, arrays = read_npz(path, FORMAT_NAME, FORMAT_VERSION, HandModelFileError, required=_ARRAY_FIELDS,
+                              what="hand model file")
     try:
-        with np.load(path, allow_pickle=False) as archive:
-            header = json.loads(archive["header"].tobytes().decode())
-            arrays = {name: archive[name] for name in _ARRAY_FIELDS}
-    except HandModelFileError:
-        raise
-    except Exception as error:  # corrupt zip, missing member, bad JSON ...
-        raise HandModelFileError(f"cannot read hand model file {path}: {error}") from None
-    if header.get("format") != FORMAT_NAME:
-        raise HandModelFileError(f"{path} is not a {FORMAT_NAME} file")
-    if header.get("version") != FORMAT_VERSION:
-        raise HandModelFileError(f"{path} has format version {header.get('version')}, "
-                                 f"this program reads version {FORMAT_VERSION}")
-    data = HandModelData(
-        side=header["side"], mode=header["mode"],
-        joint_names=tuple(header["joint_names"]), keypoint_names=tuple(header["keypoint_names"]),
-        shape_names=tuple(header["shape_names"]), shape_descriptions=tuple(header["shape_descriptions"]),
-        shared_vertex_count=int(header["shared_vertex_count"]), metadata=header.get("metadata", {}),
-        **arrays)
+        data = HandModelData(
+            side=header["side"], mode=header["mode"],
+            joint_names=tuple(header["joint_names"]), keypoint_names=tuple(header["keypoint_names"]),
+            shape_names=tuple(header["shape_names"]), shape_descriptions=tuple(header["shape_descriptions"]),
+            shared_vertex_count=int(header["shared_vertex_count"]), metadata=header.get("metadata", {}),
+            **arrays)
+    except KeyError as error:
+        raise HandModelFileError(f"cannot read hand model file {path}: its header lacks {error}") from None
     data.validate()
     return data
 
 
-SHIPPED_MODEL_FOLDER = Path(__file__).resolve().parent.parent / "assets"
+def shipped_model_folder() -> Path:
+    """The folder of the model files that come with the installed harp-avatar package (found
+    through the package, not through the source tree's layout)."""
+    from importlib.resources import files
+
+    try:
+        return Path(str(files("pipeline") / "assets"))
+    except ModuleNotFoundError:
+        raise HandModelFileError("the shipped hand model comes with the harp-avatar package, which is not installed "
+                                 "here; give a folder of model files") from None
 
 
 def model_path(mode: str = "hand", folder=None) -> Path:
@@ -229,4 +222,4 @@ def model_path(mode: str = "hand", folder=None) -> Path:
     package; the left hand is made by mirroring)."""
     if mode not in MODES:
         raise HandModelFileError(f"unknown model mode {mode!r}; choose one of {MODES}")
-    return Path(folder or SHIPPED_MODEL_FOLDER) / f"hand_model_{mode}.npz"
+    return Path(folder or shipped_model_folder()) / f"hand_model_{mode}.npz"

@@ -6,11 +6,11 @@ plus noise for synthetic experiments) and read by the fit. Frames are the sequen
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import numpy as np
 
+from .npz_file import read_npz, write_npz
 from .pose_arrays import pose_array_problems
 
 FORMAT_NAME = "harp-initial-estimate"
@@ -58,28 +58,18 @@ _ARRAYS = ("betas", "pose", "global_orient", "transl", "keypoints3d", "residual_
 
 def write_initial_estimate(folder, estimate: InitialEstimate) -> Path:
     estimate.validate()
-    path = Path(folder) / FILE_NAME
     header = {"format": FORMAT_NAME, "version": FORMAT_VERSION, "source": estimate.source,
               "mode": estimate.mode, "side": estimate.side, "metadata": estimate.metadata}
-    with open(path, "wb") as handle:
-        np.savez_compressed(handle, header=np.frombuffer(json.dumps(header).encode(), np.uint8),
-                            **{name: np.asarray(getattr(estimate, name)) for name in _ARRAYS})
-    return path
+    return write_npz(Path(folder) / FILE_NAME, header, {name: np.asarray(getattr(estimate, name)) for name in _ARRAYS})
 
 
 def read_initial_estimate(folder) -> InitialEstimate:
     path = Path(folder) / FILE_NAME
     if not path.is_file():
         raise InitialEstimateError(f"no initial estimate at {path}; run `harp init` first")
-    try:
-        with np.load(path, allow_pickle=False) as archive:
-            header = json.loads(archive["header"].tobytes().decode())
-            arrays = {name: archive[name] for name in _ARRAYS}
-    except Exception as error:
-        raise InitialEstimateError(f"cannot read {path}: {error}") from None
-    if header.get("format") != FORMAT_NAME or header.get("version") != FORMAT_VERSION:
-        raise InitialEstimateError(f"{path} is not a {FORMAT_NAME} file of version {FORMAT_VERSION}")
-    estimate = InitialEstimate(source=header["source"], mode=header["mode"], side=header["side"],
+    header, arrays = read_npz(path, FORMAT_NAME, FORMAT_VERSION, InitialEstimateError, required=_ARRAYS,
+                              what="initial estimate")
+    estimate = InitialEstimate(source=header.get("source"), mode=header.get("mode"), side=header.get("side"),
                                metadata=header.get("metadata", {}), **arrays)
     estimate.validate()
     return estimate

@@ -1,4 +1,6 @@
-"""Axis-angle rotations in numpy (the torch versions live in pipeline/handmodel/rotations.py)."""
+"""Axis-angle rotations in numpy, for the parts that run without torch (synth, the Blender add-on):
+axis-angle is the convention at every API boundary (DESIGN.md). The torch versions the fit
+differentiates live in pipeline/handmodel/rotations.py; tests check that both agree."""
 from __future__ import annotations
 
 import numpy as np

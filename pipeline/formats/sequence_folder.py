@@ -21,12 +21,11 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import struct
-import zlib
 from pathlib import Path
 
 import numpy as np
 
+from .png_file import png_size, write_png  # noqa: F401  (part of this format's API)
 from .pose_arrays import pose_array_problems
 
 FORMAT_NAME = "harp-sequence"
@@ -280,36 +279,6 @@ def validate_sequence_folder(folder) -> SequenceInfo:
     if info.albedo and not (folder / info.albedo).is_file():
         raise SequenceFolderError(f"ground-truth albedo not found: {folder / info.albedo}")
     return info
-
-
-def write_png(path, image) -> Path:
-    """Write an 8-bit grey (H, W) or RGB (H, W, 3) uint8 array as a PNG (numpy + zlib only)."""
-    image = np.asarray(image)
-    if image.dtype != np.uint8 or image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] not in (3, 4)):
-        raise SequenceFolderError(f"write_png needs uint8 (H, W), (H, W, 3) or (H, W, 4), got {image.dtype} {image.shape}")
-    height, width = image.shape[:2]
-    colour_type = {1: 0, 3: 2, 4: 6}[1 if image.ndim == 2 else image.shape[2]]
-    rows = np.ascontiguousarray(image.reshape(height, -1))
-    raw = np.concatenate([np.zeros((height, 1), np.uint8), rows], axis=1).tobytes()  # filter 0 per row
-
-    def chunk(kind, payload):
-        return struct.pack(">I", len(payload)) + kind + payload + struct.pack(">I", zlib.crc32(kind + payload))
-
-    header = struct.pack(">IIBBBBB", width, height, 8, colour_type, 0, 0, 0)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw, 6))
-                     + chunk(b"IEND", b""))
-    return path
-
-
-def png_size(path) -> tuple:
-    """(width, height) of a PNG, read from its header."""
-    with open(path, "rb") as handle:
-        head = handle.read(24)
-    if len(head) < 24 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
-        raise SequenceFolderError(f"{path} is not a PNG file (or its header is damaged)")
-    return struct.unpack(">II", head[16:24])
 
 
 def read_rgb(path) -> np.ndarray:

@@ -101,7 +101,7 @@ def build_model_data():
 
 def build_models(out_dir=None):
     """Build and write both modes; returns the written paths."""
-    out_dir = Path(out_dir) if out_dir else fmt.SHIPPED_MODEL_FOLDER
+    out_dir = Path(out_dir) if out_dir else fmt.shipped_model_folder()
     paths = []
     for mode, data in build_model_data().items():
         paths.append(fmt.save_hand_model(data, out_dir / f"hand_model_{mode}.npz"))
