@@ -1,5 +1,6 @@
 """The hand (or hand + forearm) in Blender: mesh with UVs, armature with the model's bones and
-its exact skinning weights, personal geometry as a shape key (bpy).
+its exact skinning weights, personal geometry as a shape key (bpy). One home for the rig: the
+add-on binds avatars with it and synth/ renders its clips with it.
 
 Blender reproduces the model's linear blend skinning exactly (see
 pipeline/formats/hand_model_file.py): each bone's rest matrix is the joint's rest frame with
@@ -16,7 +17,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
-from .rotations import axis_angle_to_matrix, axis_angle_to_quaternion
+from .core import rotations
 
 PERSONAL_KEY = "personal"
 MIN_BONE_LENGTH = 0.01  # metres; bone length only affects how the rig is drawn
@@ -35,9 +36,9 @@ class HandRig:
         """pose (16, 3) local axis-angle, global_orient (3,) axis-angle about the wrist, transl (3,)."""
         for j in range(16):
             bone = self.armature.pose.bones[self.data.joint_names[j]]
-            bone.rotation_quaternion = axis_angle_to_quaternion(pose[j]).tolist()
+            bone.rotation_quaternion = rotations.axis_angle_to_quaternion(pose[j]).tolist()
         world = np.eye(4)
-        world[:3, :3] = axis_angle_to_matrix(global_orient)
+        world[:3, :3] = rotations.axis_angle_to_matrix(global_orient)
         world[:3, 3] = transl
         self.armature.matrix_world = Matrix(world.tolist())
         bpy.context.view_layer.update()

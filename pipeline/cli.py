@@ -36,7 +36,7 @@ def _fit(args):
         observers.append(CurveRecorder(args.out))
     report = fit(args.sequence, args.out, preset=args.preset, resume=args.resume, progress=args.progress,
                  device=args.device, shadows=args.shadows, hold_out_every=args.hold_out_every,
-                 known_appearance=args.known_appearance, observers=observers)
+                 known_appearance=args.known_appearance, observers=observers, max_steps=args.max_steps)
     print(f"wrote {args.out} in {report['total_seconds']:.0f} s: {metrics_line(report['metrics'])}")
 
 
@@ -44,6 +44,19 @@ def _plot(args):
     from .evaluate.plot import plot_curves
 
     print(f"wrote {plot_curves(args.fits, args.out, title=args.title)}")
+
+
+def _blend(args):
+    from .blender_scene import blend_avatar
+
+    for path in blend_avatar(args.avatar, args.out, gltf=args.gltf, sequence=args.sequence):
+        print(f"wrote {path}")
+
+
+def _addon_build(args):
+    from .addon_build import build_addon
+
+    print(f"wrote {build_addon(args.out)} (validated with Blender's blender_ext.py)")
 
 
 def _study(args):
@@ -119,6 +132,8 @@ def build_parser():
     fit.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
     fit.add_argument("--hold-out-every", type=int, default=None, metavar="N",
                      help="leave every N-th frame out of the fit, for harp evaluate")
+    fit.add_argument("--max-steps", type=int, default=None, metavar="N",
+                     help="cap every stage at N steps: a quick look, not a finished avatar")
     fit.add_argument("--curve", action="store_true",
                      help="record the error against fitting time in AVATAR/curve.json (see harp plot)")
     fit.add_argument("--known-appearance", default=None, metavar="AVATAR",
@@ -168,6 +183,20 @@ def build_parser():
     render.add_argument("--shadows", choices=("fitted", "on", "off"), default="fitted")
     render.add_argument("--size", type=int, default=512)
     render.set_defaults(run=_render)
+
+    blend = commands.add_parser("blend", help="bind an avatar to a rig in a new Blender scene: .blend and glTF")
+    blend.add_argument("avatar", help="avatar folder written by harp fit")
+    blend.add_argument("--out", required=True, help=".blend file to write")
+    blend.add_argument("--gltf", default=None, help="also export the hand (skin + motion) as this .glb")
+    blend.add_argument("--sequence", default=None,
+                       help="the footage's sequence folder (default: the one the avatar was fitted to, if present)")
+    blend.set_defaults(run=_blend)
+
+    addon = commands.add_parser("addon", help="the Blender extension")
+    addon_commands = addon.add_subparsers(dest="addon_command", required=True)
+    addon_build = addon_commands.add_parser("build", help="build and validate the extension zip")
+    addon_build.add_argument("--out", default="dist", help="folder for the zip (default: dist)")
+    addon_build.set_defaults(run=_addon_build)
 
     model = commands.add_parser("model", help="the parametric hand model")
     model_commands = model.add_subparsers(dest="model_command", required=True)

@@ -17,6 +17,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
+from harp_addon.rig import build_hand_rig
 from pipeline.formats import camera as camera_convention
 from pipeline.formats import hand_model_file as model_file
 from pipeline.formats import sequence_folder as seq
@@ -29,7 +30,6 @@ from .lighting import setup_lighting
 from .material import skin_material
 from .motions import make_motion
 from .passes import configure_cycles, make_mask_scene, render_still, silenced
-from .rig import build_hand_rig
 from .viewpoint import camera_intrinsics, fit_distance, place_hand, view_rotation
 
 FOREARM_PART = model_file.PART_NAMES.index("forearm")

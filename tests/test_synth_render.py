@@ -22,7 +22,7 @@ from synth import SynthError  # noqa: E402
 from synth.clip import make_person, render_clip  # noqa: E402
 from synth.options import parse_clip_args  # noqa: E402
 from synth.passes import make_mask_scene, render_still  # noqa: E402
-from synth.rig import build_hand_rig  # noqa: E402
+from harp_addon.rig import build_hand_rig  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 RENDER = ROOT / "synth" / "render.py"

@@ -95,7 +95,7 @@ def _set_up(sequence, preset, device, shadows, max_steps, hold_out_every, known_
     validate_sequence_folder(sequence)
     initial = read_initial_estimate(sequence)
     settings = settings_for(preset, initial.frame_count, shadows=shadows, **overrides)
-    if max_steps is not None:  # for tests: cap every stage
+    if max_steps is not None:  # a quick look (and tests): every stage capped
         settings.steps = tuple(min(s, max_steps) for s in settings.steps)
         settings.align_steps = min(settings.align_steps, max_steps)
     held_out = held_out_frames(initial.frame_count, hold_out_every)
@@ -199,14 +199,17 @@ class _FitClock:
 
 @contextlib.contextmanager
 def _interrupt_flag():
-    """An Event set by Ctrl-C (SIGINT) for the block, so the loop can save and stop cleanly;
-    outside the main thread (where signals cannot be caught) it is never set."""
+    """An Event set by Ctrl-C (SIGINT; on Windows also Ctrl-Break, which the Blender add-on sends
+    to cancel) for the block, so the loop can save and stop cleanly; outside the main thread
+    (where signals cannot be caught) it is never set."""
     flag = threading.Event()
     if threading.current_thread() is not threading.main_thread():
         yield flag
         return
-    previous = signal.signal(signal.SIGINT, lambda *_: flag.set())
+    signals = [signal.SIGINT] + ([signal.SIGBREAK] if hasattr(signal, "SIGBREAK") else [])
+    previous = {number: signal.signal(number, lambda *_: flag.set()) for number in signals}
     try:
         yield flag
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for number, handler in previous.items():
+            signal.signal(number, handler)

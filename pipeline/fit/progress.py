@@ -26,8 +26,9 @@ class Progress:
             self.bar.set_postfix(loss=f"{loss:.4f}")
             self.bar.update(1)
         elif self.kind == "jsonl" and (self.done % 10 == 0 or self.done == self.total):
-            print(json.dumps({"event": "progress", "stage": stage, "step": step, "loss": loss if math.isfinite(loss) else None,
-                              "done": self.done, "total": self.total, "seconds_left": round(left, 1)}), flush=True)
+            finite = loss if math.isfinite(loss) else None
+            print(json.dumps({"event": "progress", "stage": stage, "step": step, "loss": finite, "done": self.done,
+                              "total": self.total, "seconds_left": round(left, 1)}), flush=True)
 
     def log(self, message):
         if self.kind == "jsonl":

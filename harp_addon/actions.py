@@ -1,0 +1,163 @@
+"""What the panel's buttons do, as plain functions (bpy, but no interface): start the import and
+the fit in worker jobs, cancel and resume them, poll them and act when they end, bind an avatar,
+export it. The operators (operators.py) call these; tests call them directly, since timers and
+modal operators do not run in background mode.
+"""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import bpy
+
+from . import engine
+from .core import avatar_folder, sequence_folder
+from .export import export_gltf, save_blend
+from .jobs import Job
+from .scene import BindError, bind_avatar, footage_camera
+
+INIT_FILE = "init.npz"
+
+
+class ActionError(ValueError):
+    """A button cannot do its work (one-line message for the interface)."""
+
+
+@dataclasses.dataclass
+class Running:
+    job: Job
+    kind: str                      # "import" or "fit"
+    out: Path                      # the sequence or avatar folder the job writes
+    scene_name: str
+
+
+JOBS: dict = {}                    # scene name -> Running (one job per scene at a time)
+
+
+def _python(python):
+    status_python = python or engine.default_engine_python()
+    if not status_python or not Path(status_python).is_file():
+        raise ActionError(engine.check_engine(status_python).message)
+    return status_python
+
+
+def _start(scene_name, kind, out, commands, label):
+    running = JOBS.get(scene_name)
+    if running is not None and running.job.active:
+        raise ActionError(f"a {running.kind} is running already: wait for it or cancel it")
+    JOBS[scene_name] = Running(Job(commands, label).start(), kind, Path(out), scene_name)
+    return JOBS[scene_name]
+
+
+def start_import(scene_name, video, out, masks=None, side="auto", fov=0.0, python=None, overwrite=False):
+    """`harp import-video` in a worker: the footage (a video file or image folder) and its masks
+    (optional) into the sequence folder `out`."""
+    if not video or not Path(video).exists():
+        raise ActionError(f"footage not found: {video}")
+    arguments = ["import-video", video, "--out", out, "--side", side]
+    if masks:
+        arguments += ["--masks", masks]
+    if fov:
+        arguments += ["--fov", fov]
+    if overwrite:
+        arguments.append("--overwrite")
+    return _start(scene_name, "import", out, [engine.harp_command(_python(python), *arguments)], "import")
+
+
+def start_fit(scene_name, sequence, out, preset="fast", shadows="auto", init="mediapipe", python=None,
+              resume=False, initialise_again=False, extra=()):
+    """`harp init` (unless the sequence has an init.npz and `initialise_again` is off) and then
+    `harp fit --progress jsonl` in a worker; with `resume`, the fit goes on from its checkpoint.
+    `extra` are more `harp fit` arguments (e.g. --max-steps N for a quick look)."""
+    python = _python(python)
+    sequence, out = Path(sequence), Path(out)
+    if not (sequence / sequence_folder.SEQUENCE_FILE).is_file():
+        raise ActionError(f"not a sequence folder (import the footage first): {sequence}")
+    fit = ["fit", sequence, "--out", out, "--preset", preset, "--shadows", shadows, "--progress", "jsonl", *extra]
+    if resume:
+        if not (out / "checkpoint.pt").is_file():
+            raise ActionError(f"nothing to resume in {out}")
+        return _start(scene_name, "fit", out, [engine.harp_command(python, *fit, "--resume")], "fit")
+    commands = []
+    if initialise_again or not (sequence / INIT_FILE).is_file():
+        commands.append(engine.harp_command(python, "init", sequence, "--init", init))
+    commands.append(engine.harp_command(python, *fit))
+    return _start(scene_name, "fit", out, commands, "fit")
+
+
+def cancel(scene_name):
+    running = JOBS.get(scene_name)
+    if running is None or not running.job.active:
+        raise ActionError("nothing is running")
+    running.job.cancel()
+    return running
+
+
+def poll(scene):
+    """Move the scene's job on and mirror it into the scene's HARP settings; when it has just
+    finished, set up what follows (the footage camera after an import, the avatar path after a
+    fit). Returns the Running job or None."""
+    running = JOBS.get(scene.name)
+    if running is None:
+        return None
+    was_active = running.job.active
+    running.job.poll()
+    settings = getattr(scene, "harp", None)
+    if settings is not None:
+        settings.job_label, settings.job_state = running.job.label, running.job.state
+        settings.job_fraction = running.job.fraction
+        settings.job_status = status_line(running)
+        settings.job_log = "\n".join(list(running.job.log)[-8:])
+        settings.job_errors = "\n".join(running.job.errors) if running.job.state == "failed" else ""
+    if was_active and running.job.state == "finished":
+        if running.kind == "import":
+            footage_camera(running.out, scene)
+            if settings is not None:
+                settings.sequence = str(running.out)
+        elif running.kind == "fit" and settings is not None:
+            settings.avatar = str(running.out)
+    return running
+
+
+def status_line(running):
+    """The job's one-line status; a cancelled fit says whether it can be resumed."""
+    line = running.job.status_line()
+    if running.job.state == "cancelled" and running.kind == "fit":
+        line += (" (checkpoint saved: Resume goes on from it)" if (running.out / "checkpoint.pt").is_file()
+                 else " before its first checkpoint")
+    return line
+
+
+def bind(folder, sequence=None, scene=None):
+    """Bind an avatar folder into the scene (scene.bind_avatar); one ActionError line on failure."""
+    try:
+        return bind_avatar(folder, sequence or None, scene=scene)
+    except (avatar_folder.AvatarFolderError, BindError, ValueError, OSError) as error:
+        raise ActionError(str(error)) from None
+
+
+def export(bound, gltf=None, blend=None):
+    written = []
+    if gltf:
+        written.append(export_gltf(bound, gltf))
+    if blend:
+        written.append(save_blend(blend))
+    return written
+
+
+def last_bound(scene):
+    """The BoundAvatar-like handles of the newest HARP collection in the scene, for the export
+    buttons (objects found by their roles, not their names)."""
+    for collection in reversed(list(scene.collection.children)):
+        armatures = [o for o in collection.objects if o.type == "ARMATURE"]
+        meshes = [o for o in collection.objects if o.type == "MESH" and o.parent in armatures]
+        if armatures and meshes and collection.get("harp_avatar"):
+            return dataclasses.make_dataclass("Bound", ["armature", "mesh"])(armatures[0], meshes[0])
+    raise ActionError("no bound HARP avatar in this scene: bind one first")
+
+
+def engine_python(context):
+    """The engine Python set in the add-on's preferences (or found)."""
+    addon = context.preferences.addons.get(__package__)
+    chosen = getattr(addon.preferences, "engine_python", "") if addon else ""
+    return chosen or engine.default_engine_python()

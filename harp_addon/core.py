@@ -1,0 +1,13 @@
+"""The formats the add-on reads and writes: pipeline/formats, the one source (numpy and the
+standard library only; never torch, never OpenCV).
+
+In the built extension they travel inside it as `harp_addon/vendor/formats` (the build copies
+them there, nothing is committed twice); run from the project (tests, `harp blend`, synth)
+they are imported from the installed pipeline package.
+"""
+try:  # the built extension
+    from .vendor.formats import avatar_folder, camera, fit_report, hand_model_file, rotations, sequence_folder
+except ImportError:  # the project itself
+    from pipeline.formats import avatar_folder, camera, fit_report, hand_model_file, rotations, sequence_folder
+
+__all__ = ["avatar_folder", "camera", "fit_report", "hand_model_file", "rotations", "sequence_folder"]

@@ -1,0 +1,117 @@
+"""The panel's buttons: thin operators around actions.py. Jobs are polled by a timer while one
+runs (the interface never waits for them); any failure is one line in the status bar."""
+from __future__ import annotations
+
+import math
+
+import bpy
+
+from . import actions
+
+POLL_SECONDS = 0.25
+
+
+def _poll_all():
+    """Timer: move every scene's job on and redraw the panels; stops when none is running."""
+    busy = False
+    for scene in bpy.data.scenes:
+        running = actions.poll(scene)
+        busy = busy or (running is not None and running.job.active)
+    for window in bpy.context.window_manager.windows:
+        for area in window.screen.areas:
+            if area.type == "VIEW_3D":
+                area.tag_redraw()
+    return POLL_SECONDS if busy else None
+
+
+def _watch():
+    if not bpy.app.timers.is_registered(_poll_all):
+        bpy.app.timers.register(_poll_all, first_interval=POLL_SECONDS)
+
+
+class _Action(bpy.types.Operator):
+    """Runs `self.act(context, settings)`; an ActionError becomes one reported line."""
+
+    def execute(self, context):
+        try:
+            message = self.act(context, context.scene.harp)
+        except actions.ActionError as error:
+            self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
+        if message:
+            self.report({"INFO"}, message)
+        return {"FINISHED"}
+
+
+class HARP_OT_import(_Action):
+    """Import the footage (and its masks, or masks made from it) into a sequence folder"""
+    bl_idname, bl_label = "harp.import_footage", "Import footage"
+
+    def act(self, context, settings):
+        sequence = settings.sequence or bpy.path.abspath("//harp_sequence")
+        actions.start_import(context.scene.name, bpy.path.abspath(settings.video), bpy.path.abspath(sequence),
+                             masks=bpy.path.abspath(settings.masks) if settings.masks else None, side=settings.side,
+                             fov=math.degrees(settings.fov), python=actions.engine_python(context))
+        settings.sequence = sequence
+        _watch()
+        return f"importing into {sequence}"
+
+
+class HARP_OT_fit(_Action):
+    """Initialise and fit the avatar in a worker process"""
+    bl_idname, bl_label = "harp.fit", "Fit"
+
+    resume: bpy.props.BoolProperty(default=False, options={"SKIP_SAVE"})
+
+    def act(self, context, settings):
+        avatar = settings.avatar or bpy.path.abspath("//harp_avatar")
+        actions.start_fit(context.scene.name, bpy.path.abspath(settings.sequence), bpy.path.abspath(avatar),
+                          preset=settings.preset, shadows=settings.shadows, init=settings.init,
+                          python=actions.engine_python(context), resume=self.resume)
+        settings.avatar = avatar
+        _watch()
+        return f"{'resuming' if self.resume else 'fitting'} into {avatar}"
+
+
+class HARP_OT_cancel(_Action):
+    """Stop the running job (a fit saves its checkpoint first: Resume goes on from it)"""
+    bl_idname, bl_label = "harp.cancel", "Cancel"
+
+    def act(self, context, settings):
+        actions.cancel(context.scene.name)
+        return "cancelling"
+
+
+class HARP_OT_bind(_Action):
+    """Bind the avatar folder into the scene: rig, mesh, material, motion and camera"""
+    bl_idname, bl_label = "harp.bind", "Bind avatar"
+
+    def act(self, context, settings):
+        bound = actions.bind(bpy.path.abspath(settings.avatar),
+                             bpy.path.abspath(settings.sequence) if settings.sequence else None, context.scene)
+        return f"bound {len(bound.frames)} frames into {bound.collection.name}"
+
+
+class HARP_OT_export(_Action):
+    """Export the newest bound hand: glTF binary (skin and motion) and a .blend"""
+    bl_idname, bl_label = "harp.export", "Export"
+
+    def act(self, context, settings):
+        written = actions.export(actions.last_bound(context.scene), bpy.path.abspath(settings.gltf) or None,
+                                 bpy.path.abspath(settings.blend) or None)
+        return "wrote " + ", ".join(str(path) for path in written)
+
+
+CLASSES = (HARP_OT_import, HARP_OT_fit, HARP_OT_cancel, HARP_OT_bind, HARP_OT_export)
+
+
+def register():
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+
+
+def unregister():
+    if bpy.app.timers.is_registered(_poll_all):
+        bpy.app.timers.unregister(_poll_all)
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

@@ -1,0 +1,46 @@
+"""The scene's HARP settings (scene.harp): the panel's fields and the mirror of the running job."""
+from __future__ import annotations
+
+import bpy
+from bpy.props import EnumProperty, FloatProperty, PointerProperty, StringProperty
+
+PRESETS = [("fast", "Fast", "A few minutes on a laptop CPU"), ("balanced", "Balanced", "Sharper, about three times "
+           "as long"), ("full", "Full", "The paper's schedule at 448 px: best, slowest")]
+SHADOWS = [("auto", "Auto", "Decided from the fitted light: on under a dominant light"),
+           ("on", "On", "Self-shadowing always"), ("off", "Off", "No self-shadowing (soft, even light)")]
+SIDES = [("auto", "Auto", "Tell from the footage (MediaPipe)"), ("right", "Right", ""), ("left", "Left", "")]
+INITS = [("mediapipe", "MediaPipe", "Detect the hand's keypoints in every frame (offline)"),
+         ("gt-noise", "Ground truth + noise", "Synthetic clips only: the true pose with noise")]
+
+
+class HarpSettings(bpy.types.PropertyGroup):
+    video: StringProperty(name="Footage", subtype="FILE_PATH", description="Video file or folder of frames")
+    masks: StringProperty(name="Masks", subtype="FILE_PATH",
+                          description="Mask video or folder (white = hand); empty: made from the footage")
+    side: EnumProperty(name="Hand", items=SIDES, default="auto")
+    fov: FloatProperty(name="Field of view", default=0.0, min=0.0, max=170.0, subtype="ANGLE",
+                       description="Horizontal field of view of the footage; 0: a phone's main camera")
+    sequence: StringProperty(name="Sequence", subtype="DIR_PATH", description="Sequence folder (written by Import)")
+    preset: EnumProperty(name="Preset", items=PRESETS, default="fast")
+    shadows: EnumProperty(name="Shadows", items=SHADOWS, default="auto")
+    init: EnumProperty(name="Start from", items=INITS, default="mediapipe")
+    avatar: StringProperty(name="Avatar", subtype="DIR_PATH", description="Avatar folder (written by Fit)")
+    gltf: StringProperty(name="glTF", subtype="FILE_PATH", default="//hand.glb")
+    blend: StringProperty(name=".blend", subtype="FILE_PATH", default="//hand.blend")
+    # the running job, mirrored by actions.poll
+    job_label: StringProperty()
+    job_state: StringProperty()
+    job_fraction: FloatProperty(min=0.0, max=1.0, subtype="FACTOR")
+    job_status: StringProperty()
+    job_log: StringProperty()
+    job_errors: StringProperty()
+
+
+def register():
+    bpy.utils.register_class(HarpSettings)
+    bpy.types.Scene.harp = PointerProperty(type=HarpSettings)
+
+
+def unregister():
+    del bpy.types.Scene.harp
+    bpy.utils.unregister_class(HarpSettings)

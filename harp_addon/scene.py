@@ -1,0 +1,276 @@
+"""An avatar folder bound into the scene (bpy): a collection with the capture space (an empty),
+the footage camera, the armature at the person's rest joints, the personalised mesh skinned to
+it (vertex groups from the skin weights, an Armature modifier: plain linear blend skinning), a
+skin material (albedo, tangent-space normal map), and rotation keys on the root and every pose
+bone at every fitted frame.
+
+Coordinates: the fit works in the camera frame (OpenCV: x right, y down, z forward). The capture
+space maps it into Blender's world with Z up and the camera looking along +Y
+(CAPTURE_TO_WORLD); the camera inside it is placed by pipeline/formats/camera.py, the one
+conversion. Moving the empty moves the whole capture. Sequence frame f is scene frame
+FIRST_FRAME + f.
+
+Everything is checked before anything is made (formats/avatar_folder.read_avatar_folder), and
+a bind that fails halfway removes what it made (removing_on_failure). Binding twice makes a
+second hand in its own collection.
+"""
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+from pathlib import Path
+
+import bpy
+import numpy as np
+from mathutils import Matrix
+
+from .core import avatar_folder, camera, rotations, sequence_folder
+from .rig import build_hand_rig
+
+CAPTURE_TO_WORLD = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])
+FIRST_FRAME = 1
+SKIN_ROUGHNESS = 0.5       # a satin skin: between the oily shine of 0.3 and the matte of 0.7
+UV_MAP = "UVMap"           # the rig's UV layer (rig.py)
+TRACKED = ("objects", "meshes", "armatures", "cameras", "lights", "worlds", "materials", "images", "actions",
+           "collections")
+
+
+class BindError(ValueError):
+    """An avatar cannot be bound (one-line message)."""
+
+
+@dataclasses.dataclass
+class BoundAvatar:
+    collection: bpy.types.Collection
+    space: bpy.types.Object          # the capture space: parent of the camera and the armature
+    armature: bpy.types.Object
+    mesh: bpy.types.Object
+    camera: bpy.types.Object
+    frames: np.ndarray               # scene frames with keys, one per fitted frame
+    K: np.ndarray                    # intrinsics at the scene's resolution
+    width: int
+    height: int
+    files: avatar_folder.AvatarFiles
+
+
+@contextlib.contextmanager
+def removing_on_failure():
+    """Removes every datablock (of the TRACKED kinds) made inside the block if the block fails."""
+    before = {kind: set(getattr(bpy.data, kind)) for kind in TRACKED}
+    try:
+        yield
+    except BaseException:
+        for kind in TRACKED:   # objects first: the data they use is then free to go
+            for block in [b for b in getattr(bpy.data, kind) if b not in before[kind]]:
+                getattr(bpy.data, kind).remove(block)
+        raise
+
+
+def bind_avatar(folder, sequence=None, scene=None, name=None) -> BoundAvatar:
+    """Bind the avatar folder `folder` into `scene` (default: the current one). `sequence` is
+    its footage (a sequence folder: sets the frame rate and range, the resolution and the
+    camera's background); default: the footage the avatar records, when it still exists."""
+    folder = Path(folder)
+    files = avatar_folder.read_avatar_folder(folder)
+    scene = scene or bpy.context.scene
+    footage = _footage(files, sequence)
+    width, height, K = _camera_at(files, footage)
+    name = name or f"HARP {folder.name}"
+    with removing_on_failure():
+        collection, space = _capture(scene, name)
+        collection["harp_avatar"] = str(folder.resolve())
+        camera_object = _camera(name, collection, space, K, width, height, footage)
+        rig = build_hand_rig(files.rig, np.zeros(files.rig.shapedirs.shape[-1]), collection=collection, name=name)
+        rig.armature.parent = space
+        rig.armature.matrix_parent_inverse = Matrix.Identity(4)
+        rig.mesh.data.materials.append(_skin_material(name, files))
+        _fitted_light(name, collection, space, files, scene)
+        frames = FIRST_FRAME + np.asarray(files.poses.frames, dtype=np.int64)
+        _keyframes(rig, files.poses, frames)
+        _scene_settings(scene, camera_object, footage, width, height, frames)
+    return BoundAvatar(collection, space, rig.armature, rig.mesh, camera_object, frames, K, width, height, files)
+
+
+def footage_camera(sequence, scene=None, name=None):
+    """A capture space with the camera of an imported sequence folder and its frames behind
+    it; sets the scene's frame rate, range and resolution. Returns the camera object."""
+    scene = scene or bpy.context.scene
+    try:
+        info = sequence_folder.read_sequence_info(sequence)
+    except ValueError as error:
+        raise BindError(str(error)) from None
+    name = name or f"HARP footage {Path(sequence).name}"
+    with removing_on_failure():
+        collection, space = _capture(scene, name)
+        camera_object = _camera(name, collection, space, np.asarray(info.K, dtype=np.float64), info.width,
+                                info.height, (Path(sequence), info))
+        _scene_settings(scene, camera_object, (Path(sequence), info), info.width, info.height,
+                        np.array([FIRST_FRAME]))
+    return camera_object
+
+
+def _capture(scene, name):
+    """A new collection in the scene holding the capture space (an empty at CAPTURE_TO_WORLD)."""
+    collection = bpy.data.collections.new(name)
+    scene.collection.children.link(collection)
+    space = bpy.data.objects.new(f"{name} capture", None)
+    collection.objects.link(space)
+    space.matrix_world = Matrix(CAPTURE_TO_WORLD.tolist())
+    return collection, space
+
+
+def _footage(files, sequence):
+    """(sequence folder, SequenceInfo) of the avatar's footage, or None."""
+    if sequence is None:
+        sequence = files.description.get("footage", {}).get("sequence")
+        if sequence is None or not (Path(sequence) / sequence_folder.SEQUENCE_FILE).is_file():
+            return None
+    try:
+        return Path(sequence), sequence_folder.read_sequence_info(sequence)
+    except ValueError as error:
+        raise BindError(f"footage: {error}") from None
+
+
+def _camera_at(files, footage):
+    """(width, height, K) of the scene: the footage's size when known, else the fitted images';
+    K is the fit's, scaled to that size."""
+    entry = files.description.get("camera")
+    if not entry:
+        raise BindError("avatar.json has no camera")
+    K, width, height = np.array(entry["K"], dtype=np.float64), int(entry["width"]), int(entry["height"])
+    if footage is not None:
+        info = footage[1]
+        scale = info.width / width
+        if abs(info.height / height - scale) > 0.02:
+            raise BindError(f"the footage is {info.width}x{info.height}, the avatar was fitted to {width}x{height} "
+                            "images of another shape")
+        K[:2] *= scale
+        width, height = info.width, info.height
+    return width, height, K
+
+
+def _camera(name, collection, space, K, width, height, footage):
+    data = bpy.data.cameras.new(f"{name} camera")
+    for key, value in camera.blender_camera_settings(K, width, height).items():
+        setattr(data, key, value)
+    data.clip_start, data.clip_end = 0.01, 100.0
+    camera_object = bpy.data.objects.new(f"{name} camera", data)
+    collection.objects.link(camera_object)
+    camera_object.parent = space
+    camera_object.matrix_parent_inverse = Matrix.Identity(4)
+    camera_object.matrix_basis = Matrix(camera.blender_camera_matrix_world(np.eye(3), np.zeros(3)).tolist())
+    if footage is not None and footage[1].frames.get("kind", "images") == "images":
+        first = sequence_folder.frame_path(footage[0], footage[1], 0)
+        image = bpy.data.images.load(str(first), check_existing=False)
+        image.source = "SEQUENCE"
+        background = data.background_images.new()
+        background.image = image
+        background.image_user.frame_duration = footage[1].frame_count
+        background.image_user.frame_start = FIRST_FRAME
+        background.image_user.use_auto_refresh = True
+        background.alpha, background.display_depth = 1.0, "BACK"
+        data.show_background_images = True
+    return camera_object
+
+
+def _skin_material(name, files):
+    material = bpy.data.materials.new(f"{name} skin")
+    nodes, links = material.node_tree.nodes, material.node_tree.links
+    shader = next(node for node in nodes if node.bl_idname == "ShaderNodeBsdfPrincipled")
+    albedo = nodes.new("ShaderNodeTexImage")
+    albedo.image = _image(files.albedo, "sRGB")
+    normal_image = nodes.new("ShaderNodeTexImage")
+    normal_image.image = _image(files.normal_map, "Non-Color")
+    normal_map = nodes.new("ShaderNodeNormalMap")
+    normal_map.space, normal_map.uv_map = "TANGENT", UV_MAP
+    links.new(albedo.outputs["Color"], shader.inputs["Base Color"])
+    links.new(normal_image.outputs["Color"], normal_map.inputs["Color"])
+    links.new(normal_map.outputs["Normal"], shader.inputs["Normal"])
+    shader.inputs["Roughness"].default_value = SKIN_ROUGHNESS
+    albedo.location, normal_image.location, normal_map.location = (-600, 300), (-600, -100), (-300, -100)
+    return material
+
+
+def _fitted_light(name, collection, space, files, scene):
+    """The fit's light as Blender lights: a sun from the direction of the fitted point light
+    (seen from the hand), as strong as the fit's diffuse share (1 - ambient; a sun of strength
+    pi (1 - a) lights a surface facing it like the fit's shading does), and, when the scene has
+    no world yet, a plain world of the ambient share."""
+    light = files.description.get("light", {})
+    ambient = float(light.get("ambient", 0.6))
+    centre = np.asarray(files.poses.transl, dtype=np.float64).mean(0)
+    towards = centre - np.asarray(light.get("position", centre + [0.0, -0.3, -0.3]), dtype=np.float64)
+    towards /= max(np.linalg.norm(towards), 1e-9)
+    z = -towards                                     # a sun shines along its local -Z
+    x = np.cross([0.0, -1.0, 0.0], z)
+    x = x / np.linalg.norm(x) if np.linalg.norm(x) > 1e-6 else np.array([1.0, 0.0, 0.0])
+    matrix = np.eye(4)
+    matrix[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
+    matrix[:3, 3] = centre - 0.3 * towards
+    data = bpy.data.lights.new(f"{name} light", "SUN")
+    data.energy = float(np.pi * (1 - ambient))
+    sun = bpy.data.objects.new(f"{name} light", data)
+    collection.objects.link(sun)
+    sun.parent = space
+    sun.matrix_parent_inverse = Matrix.Identity(4)
+    sun.matrix_basis = Matrix(matrix.tolist())
+    if scene.world is None:
+        scene.world = bpy.data.worlds.new(f"{name} ambient")
+        background = next(node for node in scene.world.node_tree.nodes if node.bl_idname == "ShaderNodeBackground")
+        background.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+        background.inputs["Strength"].default_value = ambient
+    return sun
+
+
+def _image(path, colour_space):
+    image = bpy.data.images.load(str(path), check_existing=False)
+    if image.size[0] == 0 or image.size[1] == 0:
+        raise BindError(f"Blender cannot read {path}")
+    image.colorspace_settings.name = colour_space
+    return image
+
+
+def _keyframes(rig, poses, frames):
+    """Root location and rotation and every pose bone's rotation at every fitted frame (linear
+    between them; quaternion signs kept continuous so no key turns the long way round)."""
+    armature = rig.armature
+    armature.rotation_mode = "QUATERNION"
+    action = bpy.data.actions.new(f"{armature.name} motion")
+    armature.animation_data_create()
+    armature.animation_data.action = action
+    channels = {"location": np.asarray(poses.transl),
+                "rotation_quaternion": _continuous(rotations.axis_angle_to_quaternion(poses.global_orient))}
+    for j, joint in enumerate(rig.data.joint_names[:len(poses.pose[0])]):
+        channels[f'pose.bones["{joint}"].rotation_quaternion'] = _continuous(
+            rotations.axis_angle_to_quaternion(poses.pose[:, j]))
+    for path, values in channels.items():
+        for index in range(values.shape[1]):
+            curve = action.fcurve_ensure_for_datablock(armature, path, index=index)
+            curve.keyframe_points.add(len(frames))
+            curve.keyframe_points.foreach_set("co", np.stack([frames, values[:, index]], 1).ravel().astype(np.float32))
+            curve.keyframe_points.foreach_set("interpolation", np.full(len(frames), _LINEAR, dtype=np.int32))
+            curve.update()
+
+
+_LINEAR = bpy.types.Keyframe.bl_rna.properties["interpolation"].enum_items["LINEAR"].value
+
+
+def _continuous(quaternions):
+    """(F, 4) quaternions with signs flipped where needed so consecutive ones agree."""
+    q = np.array(quaternions, dtype=np.float64)
+    for i in range(1, len(q)):
+        if np.dot(q[i], q[i - 1]) < 0:
+            q[i] = -q[i]
+    return q
+
+
+def _scene_settings(scene, camera_object, footage, width, height, frames):
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = width, height, 100
+    scene.camera = camera_object
+    if footage is not None:
+        info = footage[1]
+        scene.render.fps, scene.render.fps_base = max(1, round(info.fps)), max(1, round(info.fps)) / info.fps
+        scene.frame_start, scene.frame_end = FIRST_FRAME, FIRST_FRAME + info.frame_count - 1
+    else:
+        scene.frame_start, scene.frame_end = int(frames.min()), int(frames.max())
+    scene.frame_set(int(frames[0]))

@@ -1,0 +1,26 @@
+"""`harp blend AVATAR --out scene.blend [--gltf hand.glb]`: the Blender add-on's binding without
+its interface, through the bpy module (for pipelines and tests): a new empty scene, the avatar
+bound into it (harp_addon/scene.py), saved, and optionally exported as glTF binary."""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class BlendError(ValueError):
+    """The scene cannot be made (one-line message)."""
+
+
+def blend_avatar(avatar, out, gltf=None, sequence=None):
+    """Write `out` (.blend) and `gltf` (.glb) of the avatar folder; returns the paths written."""
+    try:
+        import bpy
+    except ImportError:
+        raise BlendError("harp blend needs the bpy module (bash tools/setup.sh installs it)") from None
+    from harp_addon import actions
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    try:
+        bound = actions.bind(avatar, sequence)
+    except actions.ActionError as error:
+        raise BlendError(str(error)) from None
+    return actions.export(bound, gltf=gltf, blend=Path(out))
