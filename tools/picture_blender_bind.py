@@ -2,7 +2,9 @@
 by Blender (Cycles) through the bound footage camera at two fitted frames and laid over those
 frames of the footage, beside the footage itself.
 
-    .venv/bin/python tools/picture_blender_bind.py AVATAR [--out docs/blender_bind.png] [--frames 5,20]
+    .venv/bin/python tools/picture_blender_bind.py AVATAR [--out docs/blender_bind.png] [--frames 2,16]
+
+docs/blender_bind.png: the demo avatar (harp demo's clip and fit), frames 2 and 16.
 """
 from __future__ import annotations
 
@@ -50,14 +52,14 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("avatar")
     parser.add_argument("--out", default=str(ROOT / "docs" / "blender_bind.png"))
-    parser.add_argument("--frames", default=None, help="two fitted sequence frames (default: a quarter and three)")
+    parser.add_argument("--frames", default=None, help="two fitted sequence frames (default: the first and the middle)")
     args = parser.parse_args(argv)
     from pipeline.formats import avatar_folder as av
 
     files = av.read_avatar_folder(args.avatar)
     fitted = files.poses.frames.tolist()
     frames = [int(f) for f in args.frames.split(",")] if args.frames else \
-        [fitted[len(fitted) // 4], fitted[3 * len(fitted) // 4]]
+        [fitted[0], fitted[len(fitted) // 2]]
     renders, bound = render_bound(args.avatar, frames)
     sequence = Path(files.description["footage"]["sequence"])
     info = seq.read_sequence_info(sequence)
@@ -67,7 +69,7 @@ def main(argv=None):
         render = cv2.resize(renders[frame], footage.shape[1::-1], interpolation=cv2.INTER_AREA)
         over = render[..., :3] * render[..., 3:] + footage * (1 - render[..., 3:])
         tiles = [(footage, f"footage, frame {frame}"), (over, "Blender (Cycles) over it"),
-                 (render[..., :3] * render[..., 3:] + 0.2 * (1 - render[..., 3:]), "the bound avatar")]
+                 (render[..., :3] * render[..., 3:] + 0.85 * (1 - render[..., 3:]), "the bound avatar")]
         rows.append(np.concatenate([label((np.clip(t, 0, 1) * 255).astype(np.uint8), text) for t, text in tiles], 1))
     picture = np.concatenate(rows, 0)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
