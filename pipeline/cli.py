@@ -71,7 +71,8 @@ def _study(args):
 def _evaluate(args):
     from .evaluate import EVALUATION_FILE, evaluate_fit, summary_lines
 
-    result = evaluate_fit(args.fit, args.sequence, held_out_steps=args.held_out_steps, device=args.device)
+    result = evaluate_fit(args.fit, args.sequence, held_out_steps=args.held_out_steps, device=args.device,
+                          novel_poses=args.novel_poses)
     for line in summary_lines(result):
         print(line)
     print(f"wrote {Path(args.fit) / EVALUATION_FILE}")
@@ -170,6 +171,9 @@ def build_parser():
     evaluate.add_argument("--held-out-steps", type=int, default=100, metavar="N",
                           help="Adam steps of pose and light on the held-out frames (default 100)")
     evaluate.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
+    evaluate.add_argument("--novel-poses", action="store_true",
+                          help="synthetic clips: the avatar against the true hand (geometry, new poses, texture detail; "
+                               "fidelity.json, fidelity.png)")
     evaluate.set_defaults(run=_evaluate)
 
     render = commands.add_parser("render", help="render an avatar in a new pose, view and light")

@@ -55,7 +55,7 @@ def run_demo(out, progress="bar", log=print, max_steps=None, **clip_changes):
     initialise_sequence(clip, "mediapipe", None, mode="auto", log=log)
     log(f"initialised from MediaPipe keypoints ({time.time() - start:.0f} s so far)")
     report = fit(clip, avatar, preset="fast", progress=progress, max_steps=max_steps)
-    evaluation = evaluate_fit(avatar, clip)  # against the clip's exact ground truth
+    evaluation = evaluate_fit(avatar, clip, novel_poses=True)  # against the clip's exact ground truth
     for line in summary_lines(evaluation):
         log(line)
     pictures = [render_avatar(avatar, out / f"avatar_{pose}.png", pose, None, 30.0, 10.0, None, 384, None)

@@ -40,6 +40,12 @@ def _gaussian_window(size=11, sigma=1.5, dtype=torch.float64, device=None):
 
 def _ssim_components(x, y):
     """Mean SSIM and mean contrast-structure term of (B, C, H, W) images (valid windows)."""
+    full, contrast_structure = _ssim_maps(x, y)
+    return full.mean((1, 2, 3)), contrast_structure.mean((1, 2, 3))
+
+
+def _ssim_maps(x, y):
+    """SSIM and contrast-structure maps (B, C, H - 10, W - 10) of (B, C, H, W) images (valid windows)."""
     channels = x.shape[1]
     g = _gaussian_window(dtype=x.dtype, device=x.device)
     window_h = g.view(1, 1, 1, -1).expand(channels, 1, 1, -1)
@@ -54,12 +60,17 @@ def _ssim_components(x, y):
     sigma_xy = blur(x * y) - mu_x * mu_y
     contrast_structure = (2 * sigma_xy + _C2) / (sigma_x + sigma_y + _C2)
     luminance = (2 * mu_x * mu_y + _C1) / (mu_x ** 2 + mu_y ** 2 + _C1)
-    return (luminance * contrast_structure).mean((1, 2, 3)), contrast_structure.mean((1, 2, 3))
+    return luminance * contrast_structure, contrast_structure
 
 
-def ssim(a, b):
-    """Structural similarity (Gaussian window 11, sigma 1.5, data range 1) per frame (B,)."""
-    return _ssim_components(a.permute(0, 3, 1, 2), b.permute(0, 3, 1, 2))[0]
+def ssim(a, b, mask=None):
+    """Structural similarity (Gaussian window 11, sigma 1.5, data range 1) per frame (B,); with
+    a mask (B, H, W, 1), the mean of the SSIM map over the windows centred inside it."""
+    if mask is None:
+        return _ssim_components(a.permute(0, 3, 1, 2), b.permute(0, 3, 1, 2))[0]
+    full, _ = _ssim_maps(a.permute(0, 3, 1, 2), b.permute(0, 3, 1, 2))
+    inside = mask.permute(0, 3, 1, 2)[..., 5:-5, 5:-5].to(full.dtype)
+    return (full.mean(1, keepdim=True) * inside).sum((1, 2, 3)) / inside.sum((1, 2, 3)).clamp(min=1)
 
 
 def ms_ssim(a, b):

@@ -74,6 +74,9 @@ def checker_colours(uvs, faces_uv, squares=8):
 
 
 def label(image, text, scale=0.45):
-    """Write a caption in the top-left corner (in place) and return the image."""
-    cv2.putText(image, text, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, scale, (30, 30, 30), 1, cv2.LINE_AA)
+    """Write a caption in the top-left corner (in place) and return the image: dark text on a
+    light corner, light text on a dark one."""
+    corner = image[4:22, 4:4 + 8 * len(text)]
+    colour = (30, 30, 30) if corner.size == 0 or corner.mean() > 110 else (235, 235, 235)
+    cv2.putText(image, text, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, scale, colour, 1, cv2.LINE_AA)
     return image

@@ -28,6 +28,10 @@ def test_demo_renders_initialises_fits_and_evaluates(tmp_path):
         assert (tmp_path / path).is_file(), path
     assert len(result["metrics"]["silhouette_iou"]) == 6 and result["metrics"]["silhouette_iou_min"] > 0.5
     assert np.isfinite(result["evaluation"]["poses"]["fit"]["joints"]["procrustes_mm_mean"])
+    fidelity = result["evaluation"]["fidelity"]               # the avatar against the true hand, in new poses
+    assert 0 < fidelity["geometry"]["surface_mm_mean"] < 10 and 0 < fidelity["new_poses"]["iou_mean"] <= 1
+    assert (tmp_path / "avatar" / "fidelity.png").is_file()
+    assert any(line.startswith("fidelity to the true hand") for line in lines)
     for picture in result["pictures"]:
         image = cv2.imread(str(picture))
         assert image is not None and image.std() > 5  # the hand is drawn on the grey background

@@ -15,16 +15,18 @@ import numpy as np
 from ..formats import sequence_folder as seq
 from ..formats.fit_report import HELD_OUT_FRAMES, read_report
 from .albedo import evaluate_albedo
+from .fidelity import evaluate_fidelity
 from .held_out import evaluate_held_out
 from .poses import evaluate_poses
 
 EVALUATION_FILE = "evaluation.json"
 
 
-def evaluate_fit(fit_folder, sequence, held_out_steps=100, device=None):
+def evaluate_fit(fit_folder, sequence, held_out_steps=100, device=None, novel_poses=False):
     """Every evaluation that applies to this fit and sequence: held-out frames if the report
-    lists some, albedo if the sequence has gt_albedo.png, poses if it has gt.npz. Writes
-    evaluation.json into the fit folder and returns its content."""
+    lists some, albedo if the sequence has gt_albedo.png, poses if it has gt.npz, and with
+    `novel_poses` the avatar against the true hand (fidelity.py). Writes evaluation.json into
+    the fit folder and returns its content."""
     folder, sequence = Path(fit_folder), Path(sequence)
     report = read_report(folder)
     info = seq.validate_sequence_folder(sequence)
@@ -42,6 +44,8 @@ def evaluate_fit(fit_folder, sequence, held_out_steps=100, device=None):
         result["albedo"] = evaluate_albedo(folder, sequence, device=device)
     if info.ground_truth:
         result["poses"] = evaluate_poses(folder, sequence, device=device, held_out=held_out)
+    if novel_poses:
+        result["fidelity"] = evaluate_fidelity(folder, sequence)
     (folder / EVALUATION_FILE).write_text(json.dumps(result, indent=2))
     return result
 
@@ -71,6 +75,13 @@ def summary_lines(result):
         lines.append(f"albedo in the visible UV area ({a['visible_fraction_of_uv_area']:.0%} of it): "
                      f"MAE {a['mae']:.4f}, PSNR {a['psnr']:.2f} dB; after per-channel scale ({scale}): "
                      f"MAE {a['mae_scaled']:.4f}, PSNR {a['psnr_scaled']:.2f} dB")
+    if "fidelity" in result:
+        geometry, poses, texture = (result["fidelity"][k] for k in ("geometry", "new_poses", "texture"))
+        lines.append(f"fidelity to the true hand: surface {geometry['surface_mm_mean']:.2f} mm (95%: "
+                     f"{geometry['surface_mm_p95']:.2f}), normals {geometry['normal_deg_mean']:.1f} deg, roughness "
+                     f"{geometry['roughness_deg'] or float('nan'):.1f} deg; new poses PSNR {poses['psnr_mean']:.1f} dB "
+                     f"(overlap {poses['psnr_overlap_mean']:.1f}), SSIM {poses['ssim_mean']:.3f}, IoU "
+                     f"{poses['iou_mean']:.3f}; albedo sharpness {texture['sharpness_ratio']:.2f}")
     if "poses" in result:
         poses = result["poses"]
         for label, entry in (("fitted frames", poses), ("held-out frames", poses.get("held_out"))):

@@ -1,0 +1,294 @@
+"""Fidelity of an avatar to the true hand (synthetic clips): `harp evaluate AVATAR SEQ
+--novel-poses`. Only our generator can give this: the true identity, its rest surface and its
+albedo (gt.npz: shape and personal offsets; gt_albedo.png).
+
+    geometry    the fitted rest surface (the avatar's rig.npz) against the true rest surface
+                (the shaped template plus the identity's personal offsets), in the model's rest
+                frame, over the hand (forearm and wrist cap left out): mean and 95th-percentile
+                surface distance (mm, both ways), the angle between their normals at the
+                closest points (degrees), and roughness: the mean absolute difference of the
+                dihedral angles of corresponding edges (degrees; facets and lumps raise it)
+    new poses   both rendered by our renderer in poses the clip does not contain (fist,
+                spread, thumbs-up, pinch and three random poses inside the joint limits) from
+                two views (palm and back), under one light: PSNR and SSIM inside the union of
+                the two silhouettes and the silhouette IoU (and the PSNR where both silhouettes
+                overlap, which leaves the outline out and shows texture and shading alone). The avatar's albedo is first
+                multiplied by the per-channel scale that fits the truth best in the visible UV
+                area (albedo and light intensity trade off; evaluate/albedo.py), so the figures
+                judge shape, pose response and texture, not exposure; the raw PSNR is kept too
+    texture     the albedo against the truth in the visible UV area (evaluate/albedo.py), the
+                sharpness ratio (gradient energy of the fitted albedo over the truth's, in the
+                visible area) and a crop of the most detailed visible region (a tattoo, when the
+                identity has one) in the picture
+
+`fidelity.png`: true and fitted side by side in three new poses, and the detail crop.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from .. import metrics
+from ..avatar_render import load_avatar, view_orientation
+from ..formats import hand_model_file as fmt
+from ..formats import sequence_folder as seq
+from ..handmodel.lbs import HandModel, load_model_data
+from ..handmodel.mirror import mirror_axis_angle
+from ..handmodel.poses import NAMED_POSES
+from ..handmodel.subdivision import subdivide_model_data
+from ..render.renderer import Appearance, Light, RenderMesh, render
+from ..render.shading import vertex_normals
+from .albedo import albedo_error, albedo_truth
+from .finished_fit import EvaluationError
+from .surface_distance import closest_points
+
+FIDELITY_FILE, FIDELITY_PICTURE = "fidelity.json", "fidelity.png"
+NAMED = ("fist", "spread", "thumbs_up", "pinch")
+RANDOM_POSES, RANDOM_SEED, RANDOM_SPAN = 3, 7, 0.6   # random poses: this share of each joint range about rest
+VIEWS = {"palm": (30.0, 10.0), "back": (210.0, 10.0)}   # azimuth, elevation (avatar_render.view_orientation)
+SIZE = 256
+AMBIENT = 0.6
+PICTURE_POSES = ("fist", "thumbs_up", "spread")
+HAND_PARTS = [i for i, name in enumerate(fmt.PART_NAMES) if name not in ("forearm", "wrist_cap")]
+PSNR_CAP = 100.0
+
+
+@dataclasses.dataclass
+class TrueHand:
+    """The identity of a synthetic sequence on the subdivided model (the fit's topology)."""
+
+    data: fmt.HandModelData          # subdivided; vertices = the true rest surface; betas baked in
+    albedo: torch.Tensor             # (3, T, T) gt_albedo in [0, 1]
+
+
+def true_hand(sequence) -> TrueHand:
+    sequence = Path(sequence)
+    info = seq.read_sequence_info(sequence)
+    if not info.ground_truth or not info.albedo:
+        raise EvaluationError(f"the sequence {sequence} has no ground truth (gt.npz and gt_albedo.png)")
+    gt = seq.read_ground_truth(sequence / info.ground_truth)
+    if gt.personal_offsets is None:
+        raise EvaluationError(f"{sequence / info.ground_truth} has no personal offsets (an older synth clip)")
+    return TrueHand(identity_on_model(load_model_data(gt.mode, gt.side), gt.betas, gt.personal_offsets),
+                    _albedo_tensor(seq.read_rgb(sequence / info.albedo)))
+
+
+def identity_on_model(base, betas, offsets):
+    """The subdivided HandModelData of a person: the base model shaped by `betas` plus rest
+    `offsets` (V, 3), betas baked in (so it is posed with zero betas)."""
+    betas = np.asarray(betas, dtype=np.float64)
+    person = dataclasses.replace(base, vertices=base.vertices + base.shapedirs @ betas + offsets,
+                                 joints=base.joints + base.joint_shapedirs @ betas,
+                                 keypoints=base.keypoints + base.keypoint_shapedirs @ betas)
+    return subdivide_model_data(person)
+
+
+def _albedo_tensor(image):
+    return torch.as_tensor(np.asarray(image, dtype=np.float32) / 255).permute(2, 0, 1).contiguous()
+
+
+# ----------------------------------------------------------------------------- geometry
+
+def geometry_errors(fitted: fmt.HandModelData, truth: fmt.HandModelData):
+    """Surface distance (mm), normal angle (degrees) and roughness (degrees) of the fitted rest
+    surface against the true one, over the hand (see the module docstring)."""
+    f_faces, t_faces = _hand_faces(fitted), _hand_faces(truth)
+    f_points, t_points = np.unique(f_faces), np.unique(t_faces)
+    to_truth, closest, face, bary = closest_points(fitted.vertices[f_points], truth.vertices, t_faces)
+    to_fitted, _, _, _ = closest_points(truth.vertices[t_points], fitted.vertices, f_faces)
+    distances = np.concatenate([to_truth, to_fitted]) * 1000
+    fitted_normals = _normals(fitted.vertices, fitted.faces)[f_points]
+    true_normals = _normals(truth.vertices, truth.faces)[t_faces[face]]      # (N, 3 corners, 3)
+    interpolated = (bary[..., None] * true_normals).sum(1)
+    interpolated /= np.linalg.norm(interpolated, axis=1, keepdims=True)
+    angles = np.degrees(np.arccos(np.clip((fitted_normals * interpolated).sum(1), -1, 1)))
+    result = {"surface_mm_mean": float(distances.mean()), "surface_mm_p95": float(np.percentile(distances, 95)),
+              "surface_mm_fitted_to_true": float(to_truth.mean() * 1000),
+              "surface_mm_true_to_fitted": float(to_fitted.mean() * 1000),
+              "normal_deg_mean": float(angles.mean()), "roughness_deg": None}
+    if fitted.faces.shape == truth.faces.shape and np.array_equal(fitted.faces, truth.faces):
+        result["roughness_deg"] = float(np.abs(_dihedral(fitted.vertices, f_faces) - _dihedral(truth.vertices, f_faces))
+                                        .mean())
+    return result
+
+
+def _hand_faces(data):
+    corner_parts = data.vertex_parts[data.faces]
+    return data.faces[np.isin(corner_parts, HAND_PARTS).all(1)]
+
+
+def _normals(vertices, faces):
+    points = torch.as_tensor(np.asarray(vertices, dtype=np.float64))[None]
+    return vertex_normals(points, torch.as_tensor(np.asarray(faces, dtype=np.int64)))[0].numpy()
+
+
+def _dihedral(vertices, faces):
+    """Angle (degrees) between the normals of the two faces of every interior edge, in a fixed
+    edge order for a given face list."""
+    corners = np.stack([faces, np.roll(faces, -1, 1)], 2).reshape(-1, 2)
+    keys = np.sort(corners, 1)
+    order = np.lexsort((keys[:, 1], keys[:, 0]))
+    keys, owner = keys[order], np.repeat(np.arange(len(faces)), 3)[order]
+    pair = np.nonzero((keys[1:] == keys[:-1]).all(1))[0]
+    v = np.asarray(vertices, dtype=np.float64)[faces]
+    normals = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-18)
+    cosine = (normals[owner[pair]] * normals[owner[pair + 1]]).sum(1)
+    return np.degrees(np.arccos(np.clip(cosine, -1, 1)))
+
+
+# ----------------------------------------------------------------------------- new poses
+
+def novel_poses(side="right"):
+    """{name: (16, 3)} the measure's poses: the named ones and RANDOM_POSES seeded random ones,
+    each joint drawn within RANDOM_SPAN of its range on either side of rest (wrist kept still)."""
+    limits = load_model_data("hand").joint_limits                      # (16, 3, 2) radians
+    rng = np.random.default_rng(RANDOM_SEED)
+    poses = {name: NAMED_POSES[name] for name in NAMED}
+    for k in range(RANDOM_POSES):
+        pose = rng.uniform(limits[..., 0], limits[..., 1]) * RANDOM_SPAN
+        pose[0] = 0.0
+        poses[f"random{k + 1}"] = pose
+    return {name: mirror_axis_angle(pose) if side == "left" else pose for name, pose in poses.items()}
+
+
+def render_posed(subjects, truth_model, pose, azimuth, elevation, size=SIZE):
+    """[(rgb, alpha) (1, H, W, C)] of each (HandModel, Appearance) in `subjects` in `pose` from a
+    view, all placed and lit alike: the camera frames the truth's hand, a point light up and
+    left of the camera."""
+    orient = view_orientation(azimuth, elevation)[None]
+    joint_pose = torch.as_tensor(pose, dtype=torch.float32)[None]
+    with torch.no_grad():
+        truth = truth_model(pose=joint_pose, global_orient=orient).vertices
+        hand = torch.as_tensor(np.isin(truth_model.data.vertex_parts, HAND_PARTS))
+        low, high = truth[:, hand].amin(1), truth[:, hand].amax(1)
+        focal = 2.0 * size
+        distance = focal * (high - low)[0, :2].max().item() / (0.8 * size)
+        shift = torch.tensor([0.0, 0.0, distance]) - 0.5 * (low + high)
+        K = torch.tensor([[focal, 0, size / 2], [0, focal, size / 2], [0, 0, 1.0]])
+        light = Light(torch.tensor([0.3 * distance, -0.4 * distance, 0.2 * distance]), torch.tensor(AMBIENT))
+        images = []
+        for model, appearance in subjects:
+            vertices = model(pose=joint_pose, global_orient=orient).vertices + shift
+            out = render(vertices, RenderMesh.from_model_data(model.data), K, size, size, outputs=("rgb", "alpha"),
+                         appearance=appearance, light=light, background=torch.zeros(3))
+            images.append((out["rgb"], out["alpha"]))
+    return images
+
+
+def image_scores(avatar_rgb, avatar_alpha, truth_rgb, truth_alpha):
+    """PSNR and SSIM inside the union of the silhouettes, and the silhouette IoU, of one render
+    pair ((1, H, W, C) tensors); identical images give PSNR_CAP."""
+    union = ((avatar_alpha > 0.5) | (truth_alpha > 0.5)).double()
+    both = ((avatar_alpha > 0.5) & (truth_alpha > 0.5)).double()
+    a, b = avatar_rgb.double(), truth_rgb.double()
+    return {"psnr": _capped_psnr(a, b, union), "ssim": float(metrics.ssim(a, b, union)[0]),
+            "iou": float(metrics.silhouette_iou(avatar_alpha, truth_alpha)[0]),
+            "psnr_overlap": _capped_psnr(a, b, both)}
+
+
+def _capped_psnr(a, b, mask):
+    """PSNR (dB) inside the mask; identical images give PSNR_CAP."""
+    mse = float(((a - b).square() * mask).sum() / (mask.sum() * a.shape[-1]).clamp(min=1))
+    return PSNR_CAP if mse <= 10 ** (-PSNR_CAP / 10) else float(10 * np.log10(1 / mse))
+
+
+# ----------------------------------------------------------------------------- texture
+
+def sharpness_ratio(fitted, truth, visible):
+    """Gradient energy (squared differences to the right and below neighbours, both texels
+    visible) of the fitted albedo over the truth's; (H, W, 3) images, (H, W) visible."""
+    def energy(image):
+        dx = np.square(np.diff(image, axis=1)).sum(-1)[visible[:, 1:] & visible[:, :-1]]
+        dy = np.square(np.diff(image, axis=0)).sum(-1)[visible[1:] & visible[:-1]]
+        return dx.sum() + dy.sum()
+    return float(energy(np.asarray(fitted, np.float64)) / max(energy(np.asarray(truth, np.float64)), 1e-12))
+
+
+def detail_window(truth, visible, fraction=0.25):
+    """(row, column, side) of the visible square window of the truth's albedo with the most
+    gradient energy: its most detailed visible region (a tattoo, scars, nails)."""
+    size = truth.shape[0]
+    side = max(8, int(size * fraction))
+    gradient = np.zeros(truth.shape[:2])
+    gradient[:, 1:] += np.square(np.diff(truth, axis=1)).sum(-1)
+    gradient[1:] += np.square(np.diff(truth, axis=0)).sum(-1)
+    gradient *= visible
+    integral = cv2.integral(gradient)
+    sums = integral[side:, side:] - integral[:-side, side:] - integral[side:, :-side] + integral[:-side, :-side]
+    row, column = np.unravel_index(np.argmax(sums), sums.shape)
+    return int(row), int(column), side
+
+
+# ----------------------------------------------------------------------------- all of it
+
+def evaluate_fidelity(avatar_folder, sequence, picture=True):
+    """Every fidelity figure of an avatar folder against its synthetic sequence's true hand;
+    writes fidelity.json (and fidelity.png) into the avatar folder and returns the figures."""
+    folder = Path(avatar_folder)
+    truth = true_hand(sequence)
+    avatar_model, appearance, files = load_avatar(folder)
+    if files.rig.side != truth.data.side:
+        raise EvaluationError(f"the avatar is a {files.rig.side} hand, the sequence shows a {truth.data.side} one")
+    size = appearance.albedo.shape[-1]
+    known = albedo_truth(sequence, size, fit_folder=folder)
+    fitted_albedo = appearance.albedo.permute(1, 2, 0).double().numpy()
+    texture = albedo_error(fitted_albedo, known.image, known.visible)
+    texture.update(sharpness_ratio=sharpness_ratio(fitted_albedo, known.image, known.visible),
+                   visible_fraction_of_uv_area=known.visible_fraction)
+    scale = torch.tensor(texture["scale"], dtype=torch.float32).view(3, 1, 1)
+    scaled = Appearance((appearance.albedo * scale).clamp(0, 1), appearance.normal_map)
+    truth_model = HandModel(truth.data)
+    truth_appearance = Appearance(truth.albedo)
+    poses, renders, rows = novel_poses(truth.data.side), {}, []
+    for name, pose in poses.items():
+        for view, (azimuth, elevation) in VIEWS.items():
+            (a_rgb, a_alpha), (raw_rgb, _), (t_rgb, t_alpha) = render_posed(
+                [(avatar_model, scaled), (avatar_model, appearance), (truth_model, truth_appearance)], truth_model,
+                pose, azimuth, elevation)
+            scores = image_scores(a_rgb, a_alpha, t_rgb, t_alpha)
+            scores["psnr_raw"] = image_scores(raw_rgb, a_alpha, t_rgb, t_alpha)["psnr"]
+            rows.append({"pose": name, "view": view, **scores})
+            renders[name, view] = (a_rgb[0].numpy(), t_rgb[0].numpy())
+    result = {
+        "geometry": geometry_errors(files.rig, truth.data),
+        "new_poses": {"rows": rows, **{f"{key}_mean": float(np.mean([r[key] for r in rows]))
+                                       for key in ("psnr", "ssim", "iou", "psnr_overlap", "psnr_raw")},
+                      "poses": list(poses), "views": VIEWS, "albedo_scale": texture["scale"]},
+        "texture": texture,
+    }
+    if picture:
+        window = detail_window(known.image, known.visible)
+        result["picture"] = str(write_picture(folder / FIDELITY_PICTURE, renders, fitted_albedo, known.image, window))
+    (folder / FIDELITY_FILE).write_text(json.dumps(result, indent=1))
+    return result
+
+
+def write_picture(path, renders, fitted_albedo, true_albedo, window):
+    """Rows: three new poses (palm view), truth | avatar; then the detail crops, truth | avatar."""
+    from ..preview_render import label
+
+    tiles = []
+    for name in PICTURE_POSES:
+        avatar, truth = renders[name, "palm"]
+        tiles.append(np.concatenate([label(_bytes(truth), f"true, {name}"), label(_bytes(avatar), "avatar")], 1))
+        avatar, truth = renders[name, "back"]
+        tiles.append(np.concatenate([label(_bytes(truth), "true, back"), label(_bytes(avatar), "avatar")], 1))
+    row, column, side = window
+    crops = [cv2.resize(image[row:row + side, column:column + side], (SIZE, SIZE), interpolation=cv2.INTER_NEAREST)
+             for image in (true_albedo, fitted_albedo)]
+    tiles.append(np.concatenate([label(_bytes(crops[0]), "true albedo, detail"),
+                                 label(_bytes(crops[1]), "fitted albedo")], 1))
+    grid = [np.concatenate(tiles[i:i + 2], 1) for i in range(0, len(tiles) - 1, 2)]
+    grid.append(np.concatenate([tiles[-1], np.zeros_like(tiles[-1])], 1))
+    seq.write_png(path, np.concatenate(grid, 0))
+    return Path(path)
+
+
+def _bytes(image):
+    return np.ascontiguousarray((np.clip(image, 0, 1) * 255).round().astype(np.uint8))

@@ -1,0 +1,100 @@
+"""The fidelity measure (pipeline/evaluate/fidelity.py) on analytic cases: the true identity
+scored against itself, a known displacement of the rest surface, and the point-to-mesh
+distance against dense sampling."""
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from pipeline.evaluate import fidelity
+from pipeline.evaluate.exact_clips import write_clip
+from pipeline.evaluate.surface_distance import closest_points
+from pipeline.formats import avatar_folder as av
+from pipeline.formats import sequence_folder as seq
+from pipeline.init import initialise_sequence
+from pipeline.render.shading import vertex_normals
+from synth.motions import RELAXED
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+
+def test_closest_points_against_dense_sampling():
+    rng = np.random.default_rng(0)
+    vertices = rng.normal(size=(30, 3))
+    faces = rng.integers(0, 30, size=(40, 3))
+    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
+    points = rng.normal(size=(300, 3)) * 1.5
+    distance, closest, face, bary = closest_points(points, vertices, faces, candidates=len(faces))
+    u, v = np.meshgrid(np.linspace(0, 1, 401), np.linspace(0, 1, 401))
+    inside = u + v <= 1
+    u, v = u[inside], v[inside]
+    corners = vertices[faces]
+    samples = (corners[:, :1] * (1 - u - v)[None, :, None] + corners[:, 1:2] * u[None, :, None]
+               + corners[:, 2:] * v[None, :, None]).reshape(-1, 3)
+    sampled, _ = cKDTree(samples).query(points)
+    assert np.all(sampled >= distance - 1e-12) and np.abs(sampled - distance).max() < 0.01
+    np.testing.assert_allclose((bary[:, :, None] * vertices[faces[face]]).sum(1), closest, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(closest - points, axis=1), distance, atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory):
+    """An exact clip of a person with personal offsets (gt.npz) and an albedo with detail."""
+    folder = tmp_path_factory.mktemp("clip") / "clip"
+    write_clip(folder, RELAXED, frames=3, size=96, betas=np.linspace(-0.5, 0.5, 12))
+    gt = seq.read_ground_truth(folder / seq.GT_FILE)
+    rng = np.random.default_rng(1)
+    gt.personal_offsets = rng.normal(scale=2e-4, size=(len(gt.vertices[0]), 3))   # a fraction of a mm
+    seq.write_ground_truth(folder / seq.GT_FILE, gt)
+    initialise_sequence(folder, "gt-noise", log=lambda message: None)
+    return folder
+
+
+def write_truth_avatar(folder, clip, normal_shift_m=0.0):
+    """An avatar folder holding the true identity itself (optionally displaced along its rest
+    normals by `normal_shift_m`) with the true albedo."""
+    truth = fidelity.true_hand(clip)
+    rig = truth.data
+    if normal_shift_m:
+        import torch
+        normals = vertex_normals(torch.as_tensor(rig.vertices)[None], torch.as_tensor(rig.faces.astype(np.int64)))[0]
+        rig = dataclasses.replace(rig, vertices=rig.vertices + normal_shift_m * normals.numpy())
+    info = seq.read_sequence_info(clip)
+    poses = av.AvatarPoses(np.zeros((1, 3)), np.array([[0.0, 0.0, 0.5]]), np.zeros((1, 16, 3)), np.array([0]))
+    description = {"mode": rig.mode, "side": rig.side, "betas": [0.0] * 12,
+                   "light": {"position": [0.1, -0.2, 0.0], "ambient": 0.6, "shadows": False},
+                   "camera": {"K": np.asarray(info.K).tolist(), "width": info.width, "height": info.height}}
+    albedo = seq.read_rgb(clip / seq.GT_ALBEDO_FILE)
+    normal = av.encode_normal_map(np.broadcast_to([0.0, 0.0, 1.0], albedo.shape))
+    return av.write_avatar_folder(folder, av.AvatarFiles(description, rig, poses, albedo, normal))
+
+
+def test_the_truth_scores_perfectly(clip, tmp_path):
+    folder = write_truth_avatar(tmp_path / "truth", clip)
+    result = fidelity.evaluate_fidelity(folder, clip)
+    geometry, poses, texture = result["geometry"], result["new_poses"], result["texture"]
+    assert geometry["surface_mm_mean"] < 1e-6 and geometry["surface_mm_p95"] < 1e-6
+    assert geometry["normal_deg_mean"] < 1e-3 and geometry["roughness_deg"] < 1e-3
+    # the avatar folder's flat normal map is 8-bit: (128, 128, 255) tilts normals by 0.3 degrees,
+    # so the renders differ by a hair (62 dB); without it they are identical (the cap)
+    assert poses["psnr_mean"] > 60 and poses["iou_mean"] == 1.0 and poses["ssim_mean"] > 0.9999
+    avatar_model, appearance, _ = fidelity.load_avatar(folder)
+    truth = fidelity.true_hand(clip)
+    renders = fidelity.render_posed([(avatar_model, fidelity.Appearance(appearance.albedo)),
+                                     (fidelity.HandModel(truth.data), fidelity.Appearance(truth.albedo))],
+                                    fidelity.HandModel(truth.data), fidelity.NAMED_POSES["fist"], 30.0, 10.0)
+    assert fidelity.image_scores(*renders[0], *renders[1])["psnr"] == fidelity.PSNR_CAP
+    assert len(poses["rows"]) == 7 * 2
+    assert texture["mae"] < 2 / 255 and texture["sharpness_ratio"] == pytest.approx(1.0, abs=0.02)
+    assert (folder / fidelity.FIDELITY_PICTURE).is_file()
+    assert json.loads((folder / fidelity.FIDELITY_FILE).read_text())["geometry"] == geometry
+
+
+def test_a_known_displacement_is_measured(clip, tmp_path):
+    folder = write_truth_avatar(tmp_path / "shifted", clip, normal_shift_m=0.001)
+    geometry = fidelity.evaluate_fidelity(folder, clip, picture=False)["geometry"]
+    assert geometry["surface_mm_mean"] == pytest.approx(1.0, rel=0.03)
+    assert geometry["surface_mm_fitted_to_true"] == pytest.approx(1.0, rel=0.03)
+    assert geometry["roughness_deg"] < 1.0             # an offset surface is as smooth as the original
