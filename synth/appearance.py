@@ -13,8 +13,9 @@ import dataclasses
 
 import numpy as np
 
+from pipeline.handmodel.uv_raster import dilate, interpolate, rasterize_uv
+
 from .identity import DIGIT_PART, digit_coordinates, nail_weight, smooth_field, vertex_normals
-from .uv_raster import dilate, interpolate, rasterize_uv
 
 # Skin tones from very light to very dark (sRGB 8-bit), interpolated in linear RGB.
 SKIN_TONES = np.array([(247, 224, 210), (232, 190, 172), (210, 158, 126), (172, 117, 84),

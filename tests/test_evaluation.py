@@ -20,6 +20,7 @@ from pipeline.formats.initial_estimate import read_initial_estimate
 from pipeline.handmodel.lbs import HandModel, load_model_data
 from pipeline.handmodel.uv_atlas import uv_mask as atlas_mask
 from pipeline.render.renderer import RenderMesh
+from pipeline.render.texel_visibility import visible_texels
 
 FIT_OPTIONS = dict(progress="none", max_steps=4, texture_size=64, batch_size=2, resolution=96, shadows="off",
                    device="cpu")
@@ -114,16 +115,16 @@ def test_visible_texels_are_part_of_the_uv_area(tiny_clip):
     mesh = RenderMesh.from_model_data(data)
     in_atlas = atlas_mask(data.uvs, data.faces_uv, 128)
     vertices = torch.as_tensor(gt.vertices)
-    visible = albedo.visible_texels(vertices, mesh, info.K, info.height, info.width, 128)
+    visible = visible_texels(vertices, mesh, info.K, info.height, info.width, 128)
     assert visible.any() and visible.sum() < in_atlas.sum()
     assert in_atlas[visible].mean() > 0.97               # the nearest texel of a UV inside a chart
-    first = albedo.visible_texels(vertices[:1], mesh, info.K, info.height, info.width, 128)
+    first = visible_texels(vertices[:1], mesh, info.K, info.height, info.width, 128)
     assert (visible | first).sum() == visible.sum() and first.sum() < visible.sum()
     # the hand turned half around about its centre shows mostly other texels
     centre = vertices[0].mean(0)
     turned = (vertices[0] - centre) @ torch.as_tensor(Rotation.from_euler("y", 180, degrees=True).as_matrix().T,
                                                       dtype=vertices.dtype) + centre
-    back = albedo.visible_texels(turned[None], mesh, info.K, info.height, info.width, 128)
+    back = visible_texels(turned[None], mesh, info.K, info.height, info.width, 128)
     assert (first & back).sum() < 0.1 * min(first.sum(), back.sum())
 
 

@@ -11,7 +11,8 @@ from pipeline.handmodel.anatomy import default_joint_limits
 from pipeline.handmodel.lbs import HandModel
 from pipeline.handmodel.rotations import axis_angle_to_matrix as torch_axis_angle_to_matrix
 from pipeline.formats import rotations
-from synth import appearance, identity, motions, uv_raster, viewpoint
+from pipeline.handmodel import uv_raster
+from synth import appearance, identity, motions, viewpoint
 
 
 @pytest.fixture(scope="module")

@@ -17,40 +17,16 @@ import cv2
 import numpy as np
 import torch
 
+from ..fit.problem import default_device
 from ..formats import avatar_folder as av
 from ..formats import sequence_folder as seq
 from ..handmodel.lbs import HandModel, load_model_data
 from ..handmodel.uv_atlas import uv_mask as atlas_mask
-from ..render.interpolate import fragments, interpolate
-from ..render.rasterize import rasterize
 from ..render.renderer import RenderMesh
-from ..fit.problem import default_device
+from ..render.texel_visibility import visible_texels
 from .finished_fit import EvaluationError, fitted_avatar, posed_surfaces
 
 ALBEDO_PICTURE = "albedo_comparison.png"
-
-
-def visible_texels(vertices, mesh: RenderMesh, K, height, width, texture_size, supersample=None, batch_size=4):
-    """(T, T) bool image of the UV atlas (row 0 = v 1): texels that hold the UV of a visible
-    surface point at some pixel centre of some frame.
-
-    vertices (F, V, 3) camera frame, metres; K (3, 3) for the height x width images. The frames
-    are rendered `supersample` times finer (default: at least two samples per texel width) so
-    that the seen texels form a solid area, not a sampling pattern."""
-    vertices = torch.as_tensor(vertices, dtype=torch.float32)
-    device = vertices.device
-    supersample = supersample or max(1, math.ceil(2 * texture_size / max(height, width)))
-    K = torch.as_tensor(K, dtype=vertices.dtype, device=device).clone()
-    K[:2] *= supersample
-    faces, uvs, faces_uv = (t.to(device) for t in (mesh.faces, mesh.uvs, mesh.faces_uv))
-    seen = torch.zeros(texture_size * texture_size, dtype=torch.bool, device=device)
-    for chunk in vertices.split(batch_size):
-        rast = rasterize(chunk, faces, K, height * supersample, width * supersample)
-        uv = interpolate(uvs.to(chunk.dtype), fragments(chunk, faces, K, rast), faces_uv)
-        column = (uv[:, 0] * texture_size).floor().long().clamp(0, texture_size - 1)
-        row = ((1 - uv[:, 1]) * texture_size).floor().long().clamp(0, texture_size - 1)
-        seen[row * texture_size + column] = True
-    return seen.view(texture_size, texture_size).cpu().numpy()
 
 
 def albedo_error(fitted, truth, visible):

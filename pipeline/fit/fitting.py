@@ -26,6 +26,7 @@ from .problem import FitError, FitProblem, build_problem
 from .progress import Progress
 from .settings import settings_for
 from .stage_run import StageRun, parameter_groups
+from .texture_fill import fill_avatar_albedo
 
 SHADOW_AMBIENT_THRESHOLD = 0.75   # a fitted ambient ratio below this means a dominant light
 KNOWN_APPEARANCE = SHAPE + APPEARANCE   # what a fit with known appearance takes from another fit, frozen
@@ -85,6 +86,12 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
                 saver.save_now_and_then(state, run, generator)
             clock.charge()
             state.stage, state.step, state.order = index + 1, 0, []
+            saver.save(state, None, generator)
+        if state.texture_fill is None and "albedo" not in problem.frozen:
+            state.texture_fill = fill_avatar_albedo(problem.avatar, problem.clip)
+            reporter.log(f"albedo: {state.texture_fill['unseen_fraction']:.0%} of the texels never seen, filled "
+                         f"through the surface (seam contrast {state.texture_fill['seam_contrast_before']:.3f} -> "
+                         f"{state.texture_fill['seam_contrast_after']:.3f})")
             saver.save(state, None, generator)
         clock.observe(observers, "end", problem)
     return write_outputs(out, problem, state, held_out)

@@ -88,7 +88,7 @@ def write_outputs(out, problem, state, held_out=()):
         "shadows": dataclasses.asdict(state.shadows), "events": state.events,
         "perceptual_term": problem.perceptual_name, "ambient": avatar.ambient.item(),
         "light_position": avatar.light_position.detach().cpu().tolist(),
-        "appearance": "known (frozen)" if problem.frozen else "fitted",
+        "appearance": "known (frozen)" if problem.frozen else "fitted", "texture_fill": state.texture_fill,
     }
     if len(held_out):
         report[HELD_OUT_FRAMES] = [int(i) for i in held_out]

@@ -1,0 +1,124 @@
+"""Texels the clip never showed: filled from what it did show, through the surface.
+
+A UV atlas cuts the hand into charts; a texel at a chart's border has its true neighbours in
+another chart, far away in the image. So the fill works on a graph over the texels inside the
+charts whose edges join (a) texels next to each other in the atlas and (b) border texels of
+different charts that lie next to each other on the rest surface (closer than SEAM_REACH texel
+widths in 3D). On that graph the unseen texels take the values that vary least (a screened
+harmonic fill): seen texels are fixed, every edge pulls its ends together, and a weak pull
+(SKIN_PRIOR) towards the median seen colour decides regions the graph leaves undetermined.
+Outside the charts every texel takes its nearest chart texel's value, so texture filtering at
+chart borders picks up skin, not background.
+
+Seam contrast: the mean colour difference across the seam edges (b), the jump a viewer sees
+where two charts meet on the hand.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import scipy.sparse
+import scipy.sparse.linalg
+from scipy import ndimage
+from scipy.spatial import cKDTree
+
+from ..handmodel.uv_raster import interpolate, rasterize_uv
+
+SEAM_REACH = 1.5        # texel widths (in 3D) within which border texels of two charts are joined
+SKIN_PRIOR = 1e-3       # weight of the pull towards the median seen colour, against 1 per edge
+
+
+@dataclasses.dataclass
+class TexelGraph:
+    """The texels inside the charts of a UV layout at one texture size, and their edges."""
+
+    inside: np.ndarray      # (T, T) bool: texel centres covered by a UV triangle
+    index: np.ndarray       # (T, T) int: row of each inside texel in the graph, -1 outside
+    edges: np.ndarray       # (E, 2) atlas neighbours and seam neighbours
+    seams: np.ndarray       # (S, 2) the seam edges alone
+
+
+def texel_graph(vertices, faces, uvs, faces_uv, size) -> TexelGraph:
+    """The graph of the texture of size `size` on the rest surface (vertices (V, 3), faces (F, 3),
+    uvs (U, 2), faces_uv (F, 3))."""
+    face, bary = rasterize_uv(uvs, faces_uv, size)
+    inside = face >= 0
+    index = np.full(inside.shape, -1, np.int64)
+    index[inside] = np.arange(inside.sum())
+    points = interpolate(face, bary, np.asarray(faces), np.asarray(vertices, dtype=np.float64))[inside]
+    grid = []
+    for axis in (0, 1):
+        a = index[:-1, :] if axis == 0 else index[:, :-1]
+        b = index[1:, :] if axis == 0 else index[:, 1:]
+        both = (a >= 0) & (b >= 0)
+        grid.append(np.stack([a[both], b[both]], 1))
+    grid = np.concatenate(grid)
+    neighbour_length = np.linalg.norm(points[grid[:, 0]] - points[grid[:, 1]], axis=1)
+    texel_width = float(np.median(neighbour_length)) if len(grid) else 1.0
+    border = inside & ~ndimage.binary_erosion(inside, structure=np.ones((3, 3), bool), border_value=0)
+    border_ids = index[border]
+    rows, cols = np.nonzero(border)
+    tree = cKDTree(points[border_ids])
+    pairs = np.array(sorted(tree.query_pairs(SEAM_REACH * texel_width)), dtype=np.int64).reshape(-1, 2)
+    far_in_atlas = np.abs(rows[pairs[:, 0]] - rows[pairs[:, 1]]) + np.abs(cols[pairs[:, 0]] - cols[pairs[:, 1]]) > 3
+    seams = border_ids[pairs[far_in_atlas]]
+    return TexelGraph(inside, index, np.concatenate([grid, seams]), seams)
+
+
+def seam_contrast(texture, graph: TexelGraph):
+    """Mean absolute colour difference (over channels) across the seam edges; texture (T, T, C)."""
+    values = np.asarray(texture, dtype=np.float64)[graph.inside]
+    if not len(graph.seams):
+        return 0.0
+    return float(np.abs(values[graph.seams[:, 0]] - values[graph.seams[:, 1]]).mean())
+
+
+def fill_unseen(texture, seen, graph: TexelGraph):
+    """The texture (T, T, C) with every inside texel not in `seen` (T, T) filled from the seen
+    ones through the graph (module docstring), and every outside texel from its nearest inside
+    texel. Seen texels keep their values."""
+    texture = np.asarray(texture, dtype=np.float64)
+    values = texture[graph.inside].copy()
+    known = seen[graph.inside]
+    if known.any() and not known.all():
+        count = len(values)
+        weights = np.ones(len(graph.edges))
+        adjacency = scipy.sparse.coo_matrix((np.concatenate([weights, weights]),
+                                             (np.concatenate([graph.edges[:, 0], graph.edges[:, 1]]),
+                                              np.concatenate([graph.edges[:, 1], graph.edges[:, 0]]))),
+                                            shape=(count, count)).tocsr()
+        laplacian = scipy.sparse.diags(np.asarray(adjacency.sum(1)).ravel()) - adjacency
+        unknown = np.nonzero(~known)[0]
+        system = laplacian[unknown][:, unknown] + SKIN_PRIOR * scipy.sparse.identity(len(unknown))
+        prior = np.median(values[known], axis=0)
+        right = -laplacian[unknown][:, np.nonzero(known)[0]] @ values[known] + SKIN_PRIOR * prior
+        values[unknown] = scipy.sparse.linalg.splu(system.tocsc()).solve(right)
+    filled = texture.copy()
+    filled[graph.inside] = values
+    _, nearest = ndimage.distance_transform_edt(~graph.inside, return_indices=True)
+    outside = ~graph.inside
+    filled[outside] = filled[nearest[0][outside], nearest[1][outside]]
+    return filled
+
+
+def fill_avatar_albedo(avatar, clip) -> dict:
+    """Fill the texels of the avatar's albedo that none of the clip's fitted frames shows (in
+    place, under no_grad); returns the share filled and the seam contrast before and after."""
+    import torch
+
+    from ..render.texel_visibility import visible_texels
+
+    size = avatar.albedo.shape[-1]
+    data = avatar.model.data
+    with torch.no_grad():
+        frames = torch.arange(avatar.pose.shape[0], device=avatar.pose.device)
+        vertices = torch.cat([avatar.posed(chunk)[0] for chunk in frames.split(8)])
+        seen = visible_texels(vertices, avatar.mesh, clip.K, clip.height, clip.width, size)
+        graph = texel_graph(avatar.rest_mesh().cpu().numpy(), data.faces, data.uvs, data.faces_uv, size)
+        albedo = avatar.albedo.clamp(0, 1).permute(1, 2, 0).cpu().double().numpy()
+        filled = fill_unseen(albedo, seen, graph)
+        avatar.albedo.copy_(torch.as_tensor(filled, dtype=avatar.albedo.dtype).permute(2, 0, 1))
+    unseen = graph.inside & ~seen
+    return {"unseen_fraction": float(unseen.sum() / max(graph.inside.sum(), 1)),
+            "seam_contrast_before": seam_contrast(albedo, graph), "seam_contrast_after": seam_contrast(filled, graph)}
