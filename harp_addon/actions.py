@@ -80,7 +80,7 @@ def start_fit(scene_name, sequence, out, preset="fast", shadows="auto", init="me
         return _start(scene_name, "fit", out, [engine.harp_command(python, *fit, "--resume")], "fit")
     commands = []
     if initialise_again or not (sequence / INIT_FILE).is_file():
-        commands.append(engine.harp_command(python, "init", sequence, "--init", init))
+        commands.append(engine.harp_command(python, "init", sequence, "--init", init, "--progress", "jsonl"))
     commands.append(engine.harp_command(python, *fit))
     return _start(scene_name, "fit", out, commands, "fit")
 

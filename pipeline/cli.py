@@ -36,7 +36,8 @@ def _fit(args):
         observers.append(CurveRecorder(args.out))
     report = fit(args.sequence, args.out, preset=args.preset, resume=args.resume, progress=args.progress,
                  device=args.device, shadows=args.shadows, hold_out_every=args.hold_out_every,
-                 known_appearance=args.known_appearance, observers=observers, max_steps=args.max_steps)
+                 known_appearance=args.known_appearance, observers=observers, max_steps=args.max_steps,
+                 exposure=args.exposure)
     print(f"wrote {args.out} in {report['total_seconds']:.0f} s: {metrics_line(report['metrics'])}")
 
 
@@ -72,7 +73,7 @@ def _evaluate(args):
     from .evaluate import EVALUATION_FILE, evaluate_fit, summary_lines
 
     result = evaluate_fit(args.fit, args.sequence, held_out_steps=args.held_out_steps, device=args.device,
-                          novel_poses=args.novel_poses)
+                          novel_poses=args.novel_poses, progress=args.progress)
     for line in summary_lines(result):
         print(line)
     print(f"wrote {Path(args.fit) / EVALUATION_FILE}")
@@ -94,7 +95,7 @@ def _init(args):
         raise ValueError(f"--init takes a method and at most one FILE, got {' '.join(args.init)}")
     initialise_sequence(args.sequence, method, rest[0] if rest else None, mode=args.mode, seed=args.seed,
                         noise_degrees=args.noise_degrees, noise_translation_m=args.noise_translation,
-                        warn=lambda message: print(message, file=sys.stderr))
+                        warn=lambda message: print(message, file=sys.stderr), progress=args.progress)
 
 
 def _render(args):
@@ -114,22 +115,31 @@ def _demo(args):
     run_demo(args.out, progress=args.progress)
 
 
+PRESET_HELP = ("fast (default): a few minutes on a laptop CPU; balanced: sharper, about three times as long; "
+               "full: the paper's schedule at 448 px, best and slowest")
+PROGRESS_HELP = "bar (default): a progress bar; jsonl: JSON lines (for the Blender add-on); none"
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog="harp", description=__doc__)
     commands = parser.add_subparsers(dest="command", required=True)
 
     demo = commands.add_parser("demo", help="run the built-in example: render a synthetic clip, fit it, evaluate")
     demo.add_argument("--out", default="harp_demo", help="output folder (default: harp_demo)")
-    demo.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar")
+    demo.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar", help=PROGRESS_HELP)
     demo.set_defaults(run=_demo)
 
     fit = commands.add_parser("fit", help="fit an avatar to a sequence folder that has an init.npz")
     fit.add_argument("sequence", help="sequence folder")
     fit.add_argument("--out", required=True, help="avatar folder to write")
-    fit.add_argument("--preset", choices=("fast", "balanced", "full"), default="fast")
-    fit.add_argument("--shadows", choices=("auto", "on", "off"), default="auto")
+    fit.add_argument("--preset", choices=("fast", "balanced", "full"), default="fast", help=PRESET_HELP)
+    fit.add_argument("--shadows", choices=("auto", "on", "off"), default="auto",
+                     help="self-shadowing: auto (default) decides from the fitted light, on under a dominant light")
+    fit.add_argument("--exposure", choices=("auto", "on", "off"), default="auto",
+                     help="per-frame exposure and white-balance gains: auto (default) switches them on when the "
+                          "footage's background brightness changes over the clip (a phone's automatic exposure)")
     fit.add_argument("--resume", action="store_true", help="continue from the avatar folder's checkpoint")
-    fit.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar")
+    fit.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar", help=PROGRESS_HELP)
     fit.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
     fit.add_argument("--hold-out-every", type=int, default=None, metavar="N",
                      help="leave every N-th frame out of the fit, for harp evaluate")
@@ -174,6 +184,7 @@ def build_parser():
     evaluate.add_argument("--novel-poses", action="store_true",
                           help="synthetic clips: the avatar against the true hand (geometry, new poses, texture detail; "
                                "fidelity.json, fidelity.png)")
+    evaluate.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar", help=PROGRESS_HELP)
     evaluate.set_defaults(run=_evaluate)
 
     render = commands.add_parser("render", help="render an avatar in a new pose, view and light")
@@ -219,16 +230,22 @@ def build_parser():
 
     video = commands.add_parser("import-video", help="a sequence folder from a video (or images) and its masks")
     video.add_argument("video", help="video file or folder of images")
-    video.add_argument("--masks", required=True, help="mask video or folder of mask images (white = hand)")
+    video.add_argument("--masks", default=None,
+                       help="mask video or folder of mask images (white = hand); default: made from the footage "
+                            "(MediaPipe landmarks + GrabCut); given masks always win")
     video.add_argument("--out", required=True, help="sequence folder to write")
-    video.add_argument("--size", type=int, default=448, help="square output size in pixels (default 448)")
+    video.add_argument("--size", type=int, default=448,
+                       help="square output size in pixels (default 448; a smaller crop keeps its own size)")
     camera = video.add_mutually_exclusive_group()
     camera.add_argument("--K", default=None, metavar="FX,FY,CX,CY", help="intrinsics of the video, pixels")
-    camera.add_argument("--fov", type=float, default=None, metavar="DEG", help="horizontal field of view")
+    camera.add_argument("--fov", type=float, default=None, metavar="DEG",
+                        help="horizontal field of view of the video in degrees (default: a phone's main camera, "
+                             "67 degrees across the longer side)")
     video.add_argument("--side", choices=("right", "left", "auto"), default="auto",
                        help="hand side (default: auto, from MediaPipe's handedness)")
     video.add_argument("--fps", type=float, default=None, help="frame rate (default: the video's, or 30)")
-    video.add_argument("--margin", type=float, default=0.15, help="crop margin, fraction of the hand box")
+    video.add_argument("--margin", type=float, default=0.15,
+                       help="room around the hand in the crop, as a fraction of the hand's box (default 0.15)")
     video.add_argument("--max-frames", type=int, default=None, help="import only the first N frames")
     video.add_argument("--overwrite", action="store_true", help="replace the sequence in --out")
     video.set_defaults(run=_import_video)
@@ -241,6 +258,7 @@ def build_parser():
     init.add_argument("--noise-degrees", type=float, default=10.0, help="gt-noise: rotation of every joint")
     init.add_argument("--noise-translation", type=float, default=0.01, help="gt-noise: wrist shift, metres")
     init.add_argument("--seed", type=int, default=0, help="gt-noise: random seed")
+    init.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar", help=PROGRESS_HELP)
     init.set_defaults(run=_init)
     return parser
 

@@ -1,16 +1,22 @@
-"""`harp import-video`: a sequence folder from a video (or image folder) and its masks.
+"""`harp import-video`: a sequence folder from a video (or image folder) and, optionally, its
+masks.
 
 Frames and masks are each a video file (anything OpenCV's VideoCapture decodes) or a folder of
 images (.png, .jpg, .jpeg, .bmp, .tif, .tiff, .webp; taken in natural name order, so 2.png
 comes before 10.png). They are paired by order. Masks are binarised at half intensity (the
-brightest channel >= 128 is hand), so lossy mask videos work.
+brightest channel >= 128 is hand), so lossy mask videos work. Without masks the import makes
+its own (detection/hand_masks.py: MediaPipe's landmarks seed OpenCV's GrabCut), at a working
+scale of at most AUTO_MASK_SIZE pixels; masks a user gives always win.
 
 One square window is cut for the whole clip: the union of the masks' bounding boxes, grown by
-`margin` (a fraction of the box's longer side) on every side, made square about its centre,
-shifted to stay inside the frame where it fits, and padded otherwise (edge pixels for the
-frames, background for the masks); then resized to `size` x `size`. The intrinsics follow
-exactly (pixel-corner convention of pipeline/formats/camera.py): cropping at (x0, y0) moves
-the principal point by (-x0, -y0); resizing by s scales fx, fy, cx, cy by s.
+`margin` (a fraction of the box's longer side) on every side, made square about its centre and
+shifted to stay inside the frame where it fits. Where it still reaches past the frame (a hand
+near the edge of a narrow video), the import invents nothing: those pixels are black and
+sequence.json marks them invalid (`valid_region`), so no image term or score counts them. The
+window is resized to `size` x `size`, but never enlarged: a small source keeps its own scale.
+The intrinsics follow exactly (pixel-corner convention of pipeline/formats/camera.py):
+cropping at (x0, y0) moves the principal point by (-x0, -y0); resizing by s scales fx, fy,
+cx, cy by s.
 
 Intrinsics of the original frames: `K` (fx, fy, cx, cy in pixels), or a horizontal field of
 view, or by default DEFAULT_FOV_DEG across the frame's longer side: phone main cameras have
@@ -20,9 +26,10 @@ a 24 - 26 mm (35 mm equivalent) lens, and 26 mm over the 34.6 mm long side of a 
 Frames whose mask is empty (fewer than MIN_MASK_PIXELS hand pixels: the hand left the view or
 the segmenter missed it) are left out, reported in one warning line and recorded in
 sequence.json (`metadata.source_frames`, `metadata.dropped_frames`); every other problem stops
-the import with one ImportVideoError line before anything is written. FFmpeg's and the image
-libraries' own complaints (written straight to file descriptor 2) are kept off the terminal,
-so a damaged file gives that one line and nothing else.
+the import with one ImportVideoError line. The sequence is written into a hidden folder next
+to `out` and renamed into place at the end, so a failed import leaves nothing behind.
+FFmpeg's and the image libraries' own complaints (written straight to file descriptor 2) are
+kept off the terminal, so a damaged file gives that one line and nothing else.
 """
 from __future__ import annotations
 
@@ -43,6 +50,7 @@ DEFAULT_FPS = 30.0              # for image folders
 MIN_MASK_PIXELS = seq.MIN_MASK_PIXELS  # fewer hand pixels than this: an empty mask frame
 MIN_FRAMES = 2                  # the fit needs more than one view
 MASK_THRESHOLD = 128
+AUTO_MASK_SIZE = 640            # long side of the frames masks are made at (then scaled back)
 
 
 class ImportVideoError(ValueError):
@@ -192,6 +200,16 @@ def crop_window(box, width, height, margin):
     return x0, y0, side
 
 
+def valid_region(x0, y0, side, size, width, height):
+    """[x0, y0, x1, y1] of the output pixels that hold recorded pixels of the width x height
+    frame, after cropping the window (x0, y0, side) and resizing it to size; None when all do.
+    Edge pixels only partly inside the frame count as invalid."""
+    scale = size / side
+    region = [math.ceil(max(0, -x0) * scale - 1e-9), math.ceil(max(0, -y0) * scale - 1e-9),
+              math.floor(min(side, width - x0) * scale + 1e-9), math.floor(min(side, height - y0) * scale + 1e-9)]
+    return None if region == [0, 0, size, size] else region
+
+
 def crop_intrinsics(K, x0, y0, side, size):
     """K after cropping the square window (x0, y0, side) and resizing it to size x size."""
     scale = size / side
@@ -203,15 +221,14 @@ def crop_intrinsics(K, x0, y0, side, size):
 
 
 def crop_and_resize(image, x0, y0, side, size, mask=False):
-    """Cut the square window out of an image (padding past its edges: replicated edge pixels,
-    or 0 for masks) and resize to size x size (area averaging; masks re-binarised)."""
+    """Cut the square window out of an image (black past its edges: nothing is invented) and
+    resize to size x size (area averaging; masks re-binarised)."""
     import cv2
 
     height, width = image.shape[:2]
     pad = max(0, -x0, -y0, x0 + side - width, y0 + side - height)
     if pad:
-        border = cv2.BORDER_CONSTANT if mask else cv2.BORDER_REPLICATE
-        image = cv2.copyMakeBorder(image, pad, pad, pad, pad, border, value=0)
+        image = cv2.copyMakeBorder(image, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
         x0, y0 = x0 + pad, y0 + pad
     window = image[y0:y0 + side, x0:x0 + side]
     interpolation = cv2.INTER_AREA if side >= size else cv2.INTER_LINEAR
@@ -272,10 +289,53 @@ def _damage_hint(source, decoded):
             "decoded (damaged or truncated file?)")
 
 
+class AutoMasks:
+    """Masks made from the frames themselves (detection/hand_masks.py), iterated like a
+    FrameSource of masks: (index, (H, W) uint8) at the frames' own size."""
+
+    label, limit, stored_frames = "masks (made from the footage)", None, None
+
+    def __init__(self, frames, side, log=print):
+        import cv2
+
+        from .detection.hand_masks import frame_mask
+        from .detection.mediapipe_hands import detect_keypoints, guess_hand_side
+
+        self.path = frames.path
+        small, self.size = [], None
+        for _, image in frames:
+            self.size = (image.shape[1], image.shape[0])
+            scale = min(1.0, AUTO_MASK_SIZE / max(self.size))
+            small.append(image if scale == 1.0 else cv2.resize(image, None, fx=scale, fy=scale,
+                                                                interpolation=cv2.INTER_AREA))
+        if side == "auto":
+            sample = np.unique(np.linspace(0, len(small) - 1, min(len(small), 10)).round().astype(int))
+            side, _ = guess_hand_side(small[i] for i in sample)
+        log(f"making masks from the footage: MediaPipe landmarks in {len(small)} frames")
+        keypoints = detect_keypoints(small, side)
+        self.masks = []
+        for number, (image, points) in enumerate(zip(small, keypoints.points)):
+            self.masks.append(np.packbits(frame_mask(image, points)))
+            if (number + 1) % max(1, len(small) // 10) == 0 or number + 1 == len(small):
+                log(f"masks: {number + 1}/{len(small)} frames")
+        self.small_shape = small[0].shape[:2]
+        self.detected = keypoints.detected
+
+    def __iter__(self):
+        import cv2
+
+        count = self.small_shape[0] * self.small_shape[1]
+        for index, packed in enumerate(self.masks):
+            mask = np.unpackbits(packed, count=count).reshape(self.small_shape).astype(np.float32)
+            if self.small_shape[::-1] != self.size:
+                mask = cv2.resize(mask, self.size, interpolation=cv2.INTER_LINEAR)
+            yield index, np.where(mask >= 0.5, 255, 0).astype(np.uint8)
+
+
 def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto", fps=None, margin=0.15,
                  max_frames=None, overwrite=False, log=print, warn=None):
-    """Write the sequence folder `out` from `video` and `masks` (files or image folders);
-    returns its SequenceInfo. See the module docstring for what is done and checked."""
+    """Write the sequence folder `out` from `video` and `masks` (files or image folders; None:
+    made from the frames); returns its SequenceInfo. See the module docstring."""
     warn = warn or log
     if size < 32:
         raise ImportVideoError(f"--size must be at least 32 pixels, got {size}")
@@ -293,7 +353,13 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
     if out.is_dir() and any(out.iterdir()) and not overwrite:
         raise ImportVideoError(f"output folder {out} is not empty (use --overwrite to replace its sequence)")
     frames = FrameSource(video, "video", limit=max_frames)
-    mask_source = FrameSource(masks, "masks", grey=True, limit=max_frames)
+    if masks is None:
+        try:
+            mask_source = AutoMasks(frames, side, log)
+        except ValueError as error:   # no hand in the footage
+            raise ImportVideoError(f"no masks given, and none could be made: {error}") from None
+    else:
+        mask_source = FrameSource(masks, "masks", grey=True, limit=max_frames)
     (width, height), boxes, empty, count = _scan(frames, mask_source, max_frames)
     if not boxes:
         raise ImportVideoError(f"every mask is empty (fewer than {MIN_MASK_PIXELS} hand pixels in each of {count} frames)")
@@ -305,40 +371,76 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
     stacked = np.array(list(boxes.values()))
     union = (stacked[:, 0].min(), stacked[:, 1].min(), stacked[:, 2].max(), stacked[:, 3].max())
     x0, y0, side_px = crop_window(union, width, height, margin)
-    K_out = crop_intrinsics(K_source, x0, y0, side_px, size)
-
-    if overwrite and out.is_dir():
-        for name in ("rgb", "mask"):
-            shutil.rmtree(out / name, ignore_errors=True)
-        for name in (seq.SEQUENCE_FILE, "init.npz"):
-            (out / name).unlink(missing_ok=True)
+    size = min(size, side_px)        # a small source keeps its own scale
     info = seq.SequenceInfo(fps=fps or frames.fps or DEFAULT_FPS, width=size, height=size, frame_count=len(boxes),
-                            hand_side="right", K=K_out)
+                            hand_side="right", K=crop_intrinsics(K_source, x0, y0, side_px, size),
+                            valid_region=valid_region(x0, y0, side_px, size, width, height))
     kept = sorted(boxes)
-    written = 0
-    for (index, image), (_, mask_image) in zip(frames, mask_source):
-        if index not in boxes:
-            continue
-        seq.write_png(seq.frame_path(out, info, written), crop_and_resize(image, x0, y0, side_px, size))
-        seq.write_png(seq.mask_path(out, info, written), crop_and_resize(mask_image, x0, y0, side_px, size, mask=True))
-        written += 1
-    if written != len(kept):
-        raise ImportVideoError(f"the {frames.label} gave {written} frames on the second read, {len(kept)} on the first")
-    if side == "auto":
-        from .detection.mediapipe_hands import guess_hand_side
+    partial = out.parent / f".{out.name}.partial"
+    shutil.rmtree(partial, ignore_errors=True)
+    try:
+        written = 0
+        for (index, image), (_, mask_image) in zip(frames, mask_source):
+            if index not in boxes:
+                continue
+            seq.write_png(seq.frame_path(partial, info, written), crop_and_resize(image, x0, y0, side_px, size))
+            seq.write_png(seq.mask_path(partial, info, written),
+                          crop_and_resize(mask_image, x0, y0, side_px, size, mask=True))
+            written += 1
+        if written != len(kept):
+            raise ImportVideoError(f"the {frames.label} gave {written} frames on the second read, {len(kept)} on the "
+                                   "first")
+        if side == "auto":
+            from .detection.mediapipe_hands import guess_hand_side
 
-        sample = np.unique(np.linspace(0, written - 1, min(written, 10)).round().astype(int))
-        side, votes = guess_hand_side(seq.read_rgb(seq.frame_path(out, info, i)) for i in sample)
-        log(f"hand side: {side} (MediaPipe votes right {votes['right']}, left {votes['left']} "
-            f"in {len(sample)} frames; --side overrides)")
-    info.hand_side = side
-    info.metadata = {
-        "generator": "harp import-video", "video": str(video), "masks": str(masks),
-        "source_size": [width, height], "source_K": K_source.tolist(), "camera": camera_note,
-        "crop": {"x0": x0, "y0": y0, "side": side_px, "margin": margin},
-        "source_frames": kept, "dropped_frames": {"empty_mask": empty},
-    }
-    seq.write_sequence_info(out, info)
-    log(f"wrote {written} frames ({size}x{size}, crop {side_px} px at ({x0}, {y0}) of {width}x{height}; "
-        f"{camera_note}) to {out}")
+            sample = np.unique(np.linspace(0, written - 1, min(written, 10)).round().astype(int))
+            side, votes = guess_hand_side(seq.read_rgb(seq.frame_path(partial, info, i)) for i in sample)
+            log(f"hand side: {side} (MediaPipe votes right {votes['right']}, left {votes['left']} "
+                f"in {len(sample)} frames; --side overrides)")
+        info.hand_side = side
+        info.metadata = {
+            "generator": "harp import-video", "video": str(video),
+            "masks": str(masks) if masks is not None else "made from the footage (MediaPipe + GrabCut)",
+            "source_size": [width, height], "source_K": K_source.tolist(), "camera": camera_note,
+            "crop": {"x0": x0, "y0": y0, "side": side_px, "margin": margin},
+            "source_frames": kept, "dropped_frames": {"empty_mask": empty},
+        }
+        seq.write_sequence_info(partial, info)
+        write_mask_preview(partial, info, partial / seq.MASK_PREVIEW_FILE)
+        if out.exists():
+            shutil.rmtree(out)
+        partial.rename(out)
+    except BaseException:
+        shutil.rmtree(partial, ignore_errors=True)
+        raise
+    scale_note = "" if side_px > size else f", kept at the source's {side_px} px (not enlarged)"
+    valid_note = "" if info.valid_region is None else \
+        f"; pixels outside {info.valid_region} lie past the video's edge and are marked invalid"
+    log(f"wrote {written} frames ({size}x{size}, crop {side_px} px at ({x0}, {y0}) of {width}x{height}"
+        f"{scale_note}; {camera_note}{valid_note}) to {out}; the masks over sampled frames: "
+        f"{out / seq.MASK_PREVIEW_FILE}")
     return info
+
+
+def write_mask_preview(folder, info, path, count=8, tile=224):
+    """A PNG of `count` frames sampled over the sequence, each with its mask tinted green and
+    outlined, and what lies past the video's edge (invalid) hatched dark."""
+    import cv2
+
+    picks = np.unique(np.linspace(0, info.frame_count - 1, min(count, info.frame_count)).round().astype(int))
+    valid = seq.validity_mask(info) if info.valid_region is not None else None
+    tiles = []
+    for index in picks:
+        image = seq.read_rgb(seq.frame_path(folder, info, index)).astype(np.float32)
+        mask = seq.read_mask(seq.mask_path(folder, info, index))
+        image[mask] = 0.6 * image[mask] + 0.4 * np.array([60, 220, 90])
+        if valid is not None:
+            hatch = (np.add.outer(np.arange(info.height), np.arange(info.width)) // 6) % 2 == 0
+            image[~valid & hatch] = 40
+        outline = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) > 0
+        image[outline] = (255, 255, 255)
+        tiles.append(cv2.resize(image.clip(0, 255).astype(np.uint8), (tile, tile), interpolation=cv2.INTER_AREA))
+    while len(tiles) % 4:
+        tiles.append(np.zeros_like(tiles[0]))
+    rows = [np.concatenate(tiles[i:i + 4], axis=1) for i in range(0, len(tiles), 4)]
+    seq.write_png(path, np.concatenate(rows, axis=0))

@@ -8,6 +8,7 @@ import shutil
 import subprocess
 import sys
 import textwrap
+import time
 
 import numpy as np
 import pytest
@@ -191,6 +192,7 @@ def test_worker_round_trip_progress_cancel_resume_bind(exact_clip, tmp_path, emp
     progress = []
     while running.job.active and not progress:
         progress += [event for event in running.job.poll() if event.kind == "progress"]
+        time.sleep(0.05)    # as Blender's timer would: a busy loop here starves the worker
     actions.cancel("test")
     assert running.job.wait(timeout=240) == "cancelled", list(running.job.errors)
     assert progress and (out / "checkpoint.pt").is_file() and not (out / av.AVATAR_FILE).exists()
@@ -200,6 +202,7 @@ def test_worker_round_trip_progress_cancel_resume_bind(exact_clip, tmp_path, emp
     events = []
     while resumed.job.active:
         events += [event for event in resumed.job.poll() if event.kind == "progress"]
+        time.sleep(0.05)
     assert resumed.job.state == "finished", list(resumed.job.errors)
     done = [event.done for event in events]
     assert done == sorted(done) and events[-1].done == events[-1].total

@@ -232,5 +232,5 @@ def test_init_errors_are_one_line(right_clip, tmp_path, capsys):
         seq.write_png(seq.mask_path(blank, info, index), mask)
     seq.write_sequence_info(blank, seq.SequenceInfo(fps=30, width=64, height=64, frame_count=3, hand_side="right",
                                                     K=K))
-    assert "MediaPipe found no hand in any of the 3 frames" in one_line_error(capsys, blank)
+    assert "MediaPipe found no hand in any of the 3 frames" in one_line_error(capsys, blank, "--progress", "none")
     assert "needs ground truth" in one_line_error(capsys, blank, "--init", "gt-noise")

@@ -75,8 +75,9 @@ class MediaPipeHands:
         return hands
 
 
-def detect_keypoints(frames, side, detector=None):
-    """Keypoints2D from an iterable of (H, W, 3) uint8 RGB frames of one `side` ("right"/"left").
+def detect_keypoints(frames, side, detector=None, on_frame=None):
+    """Keypoints2D from an iterable of (H, W, 3) uint8 RGB frames of one `side` ("right"/"left");
+    `on_frame()` is called after each frame (progress).
 
     Where MediaPipe finds two hands, the one labelled as `side` (see MEDIAPIPE_LABEL) is taken,
     otherwise the most confident. Raises KeypointError when no frame has a detection."""
@@ -86,6 +87,8 @@ def detect_keypoints(frames, side, detector=None):
     try:
         for rgb in frames:
             hands = detector.detect(rgb)
+            if on_frame is not None:
+                on_frame()
             if not hands:
                 points.append(np.zeros((KEYPOINT_COUNT, 2)))
                 world.append(np.zeros((KEYPOINT_COUNT, 3)))
@@ -114,13 +117,13 @@ def detect_keypoints(frames, side, detector=None):
                        handedness_ok=np.array(handedness_ok, dtype=bool), source="mediapipe")
 
 
-def detect_sequence_keypoints(folder, info=None, detector=None):
+def detect_sequence_keypoints(folder, info=None, detector=None, on_frame=None):
     """Keypoints2D of the frames of a sequence folder (image frames)."""
     from ..formats import sequence_folder as seq
 
     info = info or seq.read_sequence_info(folder)
     frames = (seq.read_rgb(seq.frame_path(folder, info, index)) for index in range(info.frame_count))
-    return detect_keypoints(frames, info.hand_side, detector)
+    return detect_keypoints(frames, info.hand_side, detector, on_frame)
 
 
 def guess_hand_side(frames, detector=None):

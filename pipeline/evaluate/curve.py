@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from ..fit.fitting import FitObserver
-from ..fit.outputs import image_scores, render_all
+from ..fit.outputs import score_renders
 from ..formats import sequence_folder as seq
 from ..formats.fit_curve import CURVE_FILE, FitCurveError, read_curve, write_curve
 from .albedo import albedo_error, albedo_truth
@@ -71,8 +71,7 @@ class CurveRecorder(FitObserver):
         stages = problem.settings.stages()
         point = {"fit_seconds": state.fit_seconds,
                  "stage": stages[state.stage].name if state.stage < len(stages) else "done", "step": state.step}
-        rgb, alpha = render_all(problem.avatar, problem.clip, bool(state.shadows.on))
-        scores = image_scores(rgb, alpha, problem.clip)
+        _, _, scores = score_renders(problem, bool(state.shadows.on))
         point.update(silhouette_iou_mean=float(np.mean(scores["silhouette_iou"])),
                      silhouette_iou_min=scores["silhouette_iou_min"], psnr_mean=scores["psnr_mean"],
                      l1_mean=scores["l1_mean"])

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..fit.progress import progress_log
 from ..formats import sequence_folder as seq
 from ..formats.fit_report import HELD_OUT_FRAMES, read_report
 from .albedo import evaluate_albedo
@@ -20,13 +21,16 @@ from .held_out import evaluate_held_out
 from .poses import evaluate_poses
 
 EVALUATION_FILE = "evaluation.json"
+HELD_OUT_PICTURE = "held_out_grid.png"
 
 
-def evaluate_fit(fit_folder, sequence, held_out_steps=100, device=None, novel_poses=False):
+def evaluate_fit(fit_folder, sequence, held_out_steps=100, device=None, novel_poses=False, progress="none"):
     """Every evaluation that applies to this fit and sequence: held-out frames if the report
-    lists some, albedo if the sequence has gt_albedo.png, poses if it has gt.npz, and with
-    `novel_poses` the avatar against the true hand (fidelity.py). Writes evaluation.json into
-    the fit folder and returns its content."""
+    lists some (and their picture, HELD_OUT_PICTURE), albedo if the sequence has gt_albedo.png,
+    poses if it has gt.npz, and with `novel_poses` the avatar against the true hand
+    (fidelity.py). Writes evaluation.json into the fit folder and returns its content.
+    `progress` ("bar", "jsonl", "none") shows the held-out fit's steps and names each part."""
+    log = progress_log(progress)
     folder, sequence = Path(fit_folder), Path(sequence)
     report = read_report(folder)
     info = seq.validate_sequence_folder(sequence)
@@ -38,13 +42,18 @@ def evaluate_fit(fit_folder, sequence, held_out_steps=100, device=None, novel_po
                              if scores.get("silhouette_iou") else None}}
     held_out = None
     if report.get(HELD_OUT_FRAMES):
-        held_out = evaluate_held_out(folder, sequence, steps=held_out_steps, device=device)
+        log(f"held-out frames {report[HELD_OUT_FRAMES]}: fitting pose and light ({held_out_steps} steps)")
+        held_out = evaluate_held_out(folder, sequence, steps=held_out_steps, device=device, progress=progress,
+                                     picture=folder / HELD_OUT_PICTURE)
         result["held_out"] = held_out.to_json()
     if info.albedo:
+        log("albedo against the truth")
         result["albedo"] = evaluate_albedo(folder, sequence, device=device)
     if info.ground_truth:
+        log("poses against the truth")
         result["poses"] = evaluate_poses(folder, sequence, device=device, held_out=held_out)
     if novel_poses:
+        log("the avatar against the true hand in new poses")
         result["fidelity"] = evaluate_fidelity(folder, sequence)
     (folder / EVALUATION_FILE).write_text(json.dumps(result, indent=2))
     return result

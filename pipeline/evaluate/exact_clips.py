@@ -1,8 +1,9 @@
 """Tiny sequence folders rendered with the project's own renderer from exact ground truth (no
 Blender, well under a second each): for tests and the study's stability sweep, which need a
-particular pose, framing or hand size. The hand is the right hand-only model with the average shape unless `betas` are given,
-seen from the back with the fingers up (synth's viewpoint convention), turning a little about
-its long axis from frame to frame; a point light near the camera and a mottled skin albedo.
+particular pose, framing or hand size. The hand is the right hand-only model (or hand +
+forearm) with the average shape unless `betas` are given, seen from the back with the fingers
+up (synth's viewpoint convention), turning a little about its long axis from frame to frame; a
+point light near the camera and a mottled skin albedo.
 
     info = write_clip(folder, FIST)                          # 4 frames, 96 x 96, hand fills the view
     info = write_clip(folder, OPEN, size=128, hand_px=30)    # a hand about 30 px tall
@@ -58,17 +59,18 @@ def posed_box(model, pose, betas):
 
 
 def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=(0.0, 0.0), azimuth=0.0, betas=None,
-               turn_degrees=TURN_DEGREES):
+               turn_degrees=TURN_DEGREES, mode="hand"):
     """Render `frames` frames of the hand in `pose` ((16, 3) or (F, 16, 3) axis-angle, radians,
     right hand) into the sequence folder `folder` with its exact ground truth (gt.npz,
     gt_albedo.png). The hand (its bounding box in frame 0's pose, centred) is 80% of the image
     tall, or `hand_px` pixels; `shift` moves it by fractions of the image (x right, y down);
-    `azimuth` (degrees) turns the view about the hand's long axis (90: from the thumb side).
-    Returns the SequenceInfo."""
-    model = HandModel.load("hand", "right", dtype=torch.float64)
+    `azimuth` (degrees) turns the view about the hand's long axis (90: from the thumb side);
+    `mode` "arm" renders the hand with its forearm (framed as a whole). Returns the SequenceInfo."""
+    model = HandModel.load(mode, "right", dtype=torch.float64)
     betas = np.zeros(model.num_betas) if betas is None else np.asarray(betas, dtype=np.float64)
     pose = np.broadcast_to(np.asarray(pose, dtype=np.float64), (frames, 16, 3)).copy()
-    pose[:, 0] = 0  # no wrist joint without a forearm
+    if mode == "hand":
+        pose[:, 0] = 0  # no wrist joint without a forearm
     focal = focal or 2000.0 * size / 448
     K = np.array([[focal, 0, size / 2], [0, focal, size / 2], [0, 0, 1.0]])
     pivot, height_m = posed_box(model, pose[0], betas)
@@ -97,7 +99,7 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
     keypoints3d = out.keypoints[:, :21].numpy()
     keypoints2d = project(keypoints3d.reshape(-1, 3), K)[0].reshape(frames, 21, 2)
     seq.write_ground_truth(folder / seq.GT_FILE, seq.GroundTruth(
-        mode="hand", side="right", betas=betas, global_orient=global_orient, transl=transl, pose=pose,
+        mode=mode, side="right", betas=betas, global_orient=global_orient, transl=transl, pose=pose,
         keypoints3d=keypoints3d, keypoints2d=keypoints2d, vertices=out.vertices.numpy(),
         light={"preset": "pipeline/evaluate/exact_clips.py", "position": [0.1, -0.2, 0.0], "ambient": AMBIENT}))
     seq.write_png(folder / seq.GT_ALBEDO_FILE, _to_uint8(albedo.transpose(1, 2, 0)))
@@ -110,7 +112,7 @@ def fraction_outside(folder):
     vertices rendered on a canvas three times the image's size."""
     info = seq.read_sequence_info(folder)
     gt = seq.read_ground_truth(folder / seq.GT_FILE)
-    model = HandModel.load("hand", "right", dtype=torch.float64)
+    model = HandModel.load(gt.mode, "right", dtype=torch.float64)
     K = np.array(info.K, dtype=np.float64)
     K[0, 2] += info.width
     K[1, 2] += info.height

@@ -19,7 +19,8 @@ import torch
 
 from ..fit.avatar import LIGHT, SHAPE, TEXTURES, Avatar
 from ..fit.checkpoint import FitState
-from ..fit.outputs import image_scores, render_all
+from ..fit.outputs import score_renders, write_grid
+from ..fit.progress import Progress
 from ..fit.problem import build_problem, default_device
 from ..fit.settings import Stage
 from ..fit.stage_run import StageRun
@@ -50,9 +51,12 @@ class HeldOutResult:
                 "events": self.events, "metrics": self.metrics, "metrics_before": self.metrics_before}
 
 
-def evaluate_held_out(fit_folder, sequence, frames=None, steps=100, device=None) -> HeldOutResult:
+def evaluate_held_out(fit_folder, sequence, frames=None, steps=100, device=None, progress="none",
+                      picture=None) -> HeldOutResult:
     """Fit pose, translation and light to frames the fit left out (default: the report's
-    held-out frames), appearance and shape frozen, in `steps` steps; score them before and after."""
+    held-out frames), appearance and shape frozen, in `steps` steps; score them before and after.
+    `progress`: "bar", "jsonl" or "none" (fit/progress.py); `picture`: a PNG path for the held-out
+    frames as the fit's grid shows its own (input, render, difference)."""
     device = default_device(device)
     saved, report = load_finished_fit(fit_folder, device)
     frames = np.asarray(report.get(HELD_OUT_FRAMES, []) if frames is None else frames, dtype=np.int64)
@@ -75,12 +79,16 @@ def evaluate_held_out(fit_folder, sequence, frames=None, steps=100, device=None)
     def loss_and_scores():
         with torch.no_grad():
             loss, _ = run.energy(problem.all_frames(), backward=False)
-        scores = image_scores(*render_all(problem.avatar, problem.clip, shadows), problem.clip)
-        return loss, {**scores, "silhouette_iou_mean": float(np.mean(scores["silhouette_iou"]))}
+        rgb, _, scores = score_renders(problem, shadows)
+        return loss, {**scores, "silhouette_iou_mean": float(np.mean(scores["silhouette_iou"]))}, rgb
 
-    loss_before, metrics_before = loss_and_scores()
-    while run.has_work and not run.finished:
-        run.step()
-    loss_after, metrics = loss_and_scores()
+    loss_before, metrics_before, _ = loss_and_scores()
+    with Progress(progress, steps) as bar:
+        while run.has_work and not run.finished:
+            run.step()
+            bar.update("held-out frames", len(state.history), state.history[-1]["loss"] if state.history else float("nan"))
+    loss_after, metrics, rgb = loss_and_scores()
+    if picture is not None:
+        write_grid(picture, problem.clip, rgb)
     return HeldOutResult(frames, metrics, metrics_before, loss_before, loss_after, state.history, state.events,
                          shadows, problem.avatar)

@@ -9,7 +9,7 @@ linear-blend-skinning rig (Blender's Armature modifier, a game engine) animates:
 folder's rest mesh posed by the armature reproduces every fitted frame. It is also cheaper:
 the normals are taken once per step, not once per frame.
 Per frame: global rotation, translation, joint rotations (the wrist's only in hand+forearm
-mode). Shared: shape, displacements, albedo texture, normal map, light position, ambient ratio.
+mode), and the camera's exposure (a colour gain; fitted only when the clip needs it). Shared: shape, displacements, albedo texture, normal map, light position, ambient ratio.
 """
 from __future__ import annotations
 
@@ -23,7 +23,8 @@ from ..render.shading import vertex_normals
 SKIN_RGB = (232 / 255, 190 / 255, 172 / 255)
 INITIAL_AMBIENT = 0.6
 # the avatar's parameters by kind
-PER_FRAME = ("global_orient", "transl", "pose")
+POSE = ("global_orient", "transl", "pose")
+PER_FRAME = POSE + ("exposure",)
 SHAPE = ("betas", "displacement")
 TEXTURES = ("albedo", "normal_map")
 LIGHT = ("light_position", "ambient_logit")
@@ -43,6 +44,7 @@ class Avatar(torch.nn.Module):
             return torch.nn.Parameter(torch.as_tensor(np.array(array), dtype=dtype, device=device))
 
         self.global_orient = parameter(initial.global_orient[frames])
+        self.exposure = parameter(np.zeros((len(frames), 3)))   # log colour gain of each frame's camera
         self.transl = parameter(initial.transl[frames])
         self.pose = parameter(initial.pose[frames])
         self.betas = parameter(initial.betas)
@@ -74,6 +76,11 @@ class Avatar(torch.nn.Module):
     def appearance(self, normal_map=True):
         unit = torch.nn.functional.normalize(self.normal_map, dim=0, eps=1e-12)
         return Appearance(self.albedo.clamp(0, 1), unit if normal_map else None)
+
+    def exposure_gain(self, batch):
+        """(B, 1, 1, 3) colour gain of the frames `batch`: what the camera's exposure and white
+        balance did to them."""
+        return torch.exp(self.exposure[batch])[:, None, None, :]
 
     def light(self, shadows=False):
         return Light(self.light_position, self.ambient, shadows=shadows)

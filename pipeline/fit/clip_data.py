@@ -13,6 +13,9 @@ import torch
 from ..formats import sequence_folder as seq
 
 
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722])   # Rec. 709 weights of linear-ish RGB
+
+
 @dataclasses.dataclass
 class ClipData:
     images: torch.Tensor      # (F, H, W, 3) in [0, 1]
@@ -20,6 +23,7 @@ class ClipData:
     K: torch.Tensor           # (3, 3) intrinsics at the working resolution
     info: seq.SequenceInfo
     frames: np.ndarray        # (F,) indices into the sequence
+    valid: torch.Tensor | None = None   # (H, W, 1) pixels the camera recorded (None: all)
 
     @property
     def height(self):
@@ -35,13 +39,25 @@ class ClipData:
         when they are compared with the frames."""
         return background_plates(self.images, self.masks)
 
+    @functools.cached_property
+    def background_colour(self):
+        """(F, 3) median colour of each frame's background (recorded pixels away from the hand):
+        it changes over a clip when the camera's exposure or white balance does."""
+        return background_colour(self.images, self.masks, self.valid)
+
+    @property
+    def background_brightness(self):
+        """(F,) luminance of background_colour."""
+        return self.background_colour @ LUMINANCE
+
 
 def load_clip(folder, resolution=None, frames=None, device=None, dtype=torch.float32):
-    """Frames and masks of a sequence folder, resized so the long side is `resolution`; an empty
-    or all-foreground mask stops with one SequenceFolderError line."""
+    """Frames and masks of a sequence folder, shrunk so the long side is at most `resolution`
+    (never enlarged: a small source is fitted at its own scale), with its validity mask; an
+    empty or all-foreground mask stops with one SequenceFolderError line."""
     info = seq.validate_sequence_folder(folder)
     frames = np.arange(info.frame_count) if frames is None else np.asarray(frames)
-    scale = 1.0 if resolution is None else resolution / max(info.width, info.height)
+    scale = 1.0 if resolution is None else min(1.0, resolution / max(info.width, info.height))
     size = (int(round(info.width * scale)), int(round(info.height * scale)))
     images, masks = [], []
     for index in frames:
@@ -56,9 +72,27 @@ def load_clip(folder, resolution=None, frames=None, device=None, dtype=torch.flo
         masks.append((mask >= 0.5).astype(np.float32))
     K = np.asarray(info.K, dtype=np.float64).copy()
     K[:2] *= np.array([[size[0] / info.width], [size[1] / info.height]])
+    valid = None
+    if info.valid_region is not None:   # a pixel counts only if it is wholly recorded
+        recorded = cv2.resize(seq.validity_mask(info).astype(np.float32), size, interpolation=cv2.INTER_AREA)
+        valid = torch.as_tensor((recorded > 0.999)[..., None], dtype=dtype, device=device)
     return ClipData(torch.as_tensor(np.stack(images), dtype=dtype, device=device),
                     torch.as_tensor(np.stack(masks)[..., None], dtype=dtype, device=device),
-                    torch.as_tensor(K, dtype=dtype, device=device), info, frames)
+                    torch.as_tensor(K, dtype=dtype, device=device), info, frames, valid)
+
+
+def background_colour(images, masks, valid=None, margin=8):
+    """(F, 3) median colour of each frame's pixels farther than `margin` px from the hand (and
+    recorded; NaN where there are none); images (F, H, W, 3), masks (F, H, W, 1)."""
+    kernel = np.ones((2 * margin + 1, 2 * margin + 1), np.uint8)
+    values = []
+    recorded = None if valid is None else valid.cpu().numpy()[..., 0] > 0.5
+    for image, mask in zip(images.cpu().numpy(), masks.cpu().numpy()):
+        away = cv2.dilate((mask[..., 0] > 0.5).astype(np.uint8), kernel) == 0
+        if recorded is not None:
+            away &= recorded
+        values.append(np.median(image[away], axis=0) if away.any() else np.full(3, np.nan))
+    return np.array(values, dtype=np.float64)
 
 
 def background_plates(images, masks, margin=2):

@@ -30,7 +30,8 @@ def batch_energy(problem: FitProblem, stage: Stage, batch, shadows, generator):
             terms[name] = term()
 
     if stage.geometry:
-        add("silhouette", lambda: losses.silhouette_loss(images["alpha"], masks))
+        weight = None if problem.silhouette_weight is None else problem.silhouette_weight[batch]
+        add("silhouette", lambda: losses.silhouette_loss(images["alpha"], masks, weight))
         add("keypoint_anchor", lambda: losses.keypoint_anchor_loss(keypoints[:, :21], problem.anchor_keypoints[batch]))
         # over every frame (no rendering involved): the batch's frames feel their neighbours
         add("temporal_pose", lambda: losses.temporal_pose_loss(avatar.pose * avatar.pose_mask, avatar.frame_numbers))
@@ -39,16 +40,20 @@ def batch_energy(problem: FitProblem, stage: Stage, batch, shadows, generator):
     if stage.geometry and not stage.coarse:
         add("displacement", lambda: losses.displacement_loss(avatar.displacement))
         add("laplacian", lambda: losses.laplacian_loss(vertices, problem.edges))
+        add("displacement_smoothness", lambda: losses.displacement_smoothness_loss(avatar.displacement, problem.edges))
         add("normal_consistency", lambda: losses.normal_consistency_loss(vertices, avatar.mesh.faces,
                                                                          problem.face_pairs))
         add("edge_length", lambda: losses.edge_length_loss(vertices, problem.reference_vertices[batch], problem.edges))
     if stage.appearance:
-        rendered = images["rgb"]
+        rendered = images["rgb"] * avatar.exposure_gain(batch) if problem.exposure_on else images["rgb"]
         target = frames * masks
         add("photometric", lambda: losses.photometric_loss(rendered, target, masks))
         add("perceptual", lambda: problem.perceptual(rendered * masks, target, masks))
         add("texture", lambda: losses.texture_smoothness_loss(avatar.albedo, problem.uv_mask, generator))
         add("normal_map", lambda: losses.normal_map_loss(torch.nn.functional.normalize(avatar.normal_map, dim=0),
                                                          problem.uv_mask, generator))
+        if problem.exposure_on:
+            add("exposure", lambda: losses.exposure_loss(avatar.exposure, avatar.frame_numbers,
+                                                                     *problem.exposure_measured))
     total = sum((weights[name] * value for name, value in terms.items()), vertices.new_zeros(()))
     return total, {name: float(value.detach()) for name, value in terms.items()}

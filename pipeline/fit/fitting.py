@@ -87,7 +87,7 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
             clock.charge()
             state.stage, state.step, state.order = index + 1, 0, []
             saver.save(state, None, generator)
-        if state.texture_fill is None and "albedo" not in problem.frozen:
+        if state.texture_fill is None and not problem.known_appearance:
             state.texture_fill = fill_avatar_albedo(problem.avatar, problem.clip)
             reporter.log(f"albedo: {state.texture_fill['unseen_fraction']:.0%} of the texels never seen, filled "
                          f"through the surface (seam contrast {state.texture_fill['seam_contrast_before']:.3f} -> "
@@ -123,10 +123,12 @@ def _set_up(sequence, preset, device, shadows, max_steps, hold_out_every, known_
 
 def _opening_line(problem, preset):
     settings, initial = problem.settings, problem.initial
-    known = ", appearance known (frozen)" if problem.frozen else ""
+    known = ", appearance known (frozen)" if problem.known_appearance else ""
     return (f"fitting {len(problem.frames)} frames ({initial.mode} mode, {initial.side} hand) with preset {preset}"
-            f"{known}, perceptual term {problem.perceptual_name}; expected time "
-            f"{settings.expected_seconds(len(problem.frames)) / 60:.1f} min on {problem.device}")
+            f"{known}, perceptual term {problem.perceptual_name}, exposure gains {problem.exposure_note}"
+            + (f"; {problem.mask_cut_frames} masks end mid-forearm (a sleeve?): the silhouette beyond that line is "
+               "not compared" if problem.mask_cut_frames else "")
+            + f"; expected time {settings.expected_seconds(len(problem.frames)) / 60:.1f} min on {problem.device}")
 
 
 def _decide_shadows(problem, run, reporter):

@@ -13,9 +13,11 @@ import torch.nn.functional as F
 KEYPOINT_UNIT = 0.1   # the anchor measures distances in units of 10 cm
 
 
-def silhouette_loss(alpha, mask):
-    """Mean absolute difference of rendered alpha (B, H, W, 1) and target mask (B, H, W, 1)."""
-    return (alpha - mask).abs().mean()
+def silhouette_loss(alpha, mask, weight=None):
+    """Mean absolute difference of rendered alpha (B, H, W, 1) and target mask (B, H, W, 1),
+    each pixel weighted by `weight` (B, H, W, 1) when given (0: the mask says nothing there)."""
+    difference = (alpha - mask).abs()
+    return (difference if weight is None else difference * weight).mean()
 
 
 def keypoint_anchor_loss(keypoints, initial_keypoints, root=0):
@@ -29,6 +31,13 @@ def keypoint_anchor_loss(keypoints, initial_keypoints, root=0):
 def displacement_loss(displacements):
     """Sum of squared per-vertex displacements (V,) along the normals (metres^2)."""
     return displacements.square().sum()
+
+
+def displacement_smoothness_loss(displacements, edges, unit=1e-3):
+    """Mean squared difference of the displacements (V,) of the ends of every edge (E, 2), in
+    units of `unit` (1 mm): the roughness of the displacement field itself, blind to the
+    template's own curvature (which a Laplacian of the positions also penalises)."""
+    return ((displacements[edges[:, 0]] - displacements[edges[:, 1]]) / unit).square().mean()
 
 
 def uniform_laplacian(vertices, edges):
@@ -120,6 +129,22 @@ def temporal_pose_loss(pose, times):
     if len(pose) < 2:
         return pose.new_zeros(())
     return _per_frame_step(pose, times).square().sum((1, 2)).mean()
+
+
+def exposure_loss(log_gains, times, measured, known, spread=0.02):
+    """Per-frame log colour gains (F, 3): their mean squared acceleration per frame^2 (exposure
+    drifts smoothly), plus their squared distance in units of `spread` from the gains `measured`
+    (F, 3) where `known` (F,) (the background's colour: a rotating hand's shading may not pass
+    for exposure), plus the square of their mean (the albedo carries the average)."""
+    total = log_gains.mean(0).square().sum()
+    if known.any():
+        total = total + ((log_gains[known] - measured[known]) / spread).square().sum(1).mean()
+    if len(log_gains) >= 3:
+        velocity = _per_frame_step(log_gains, times)
+        half_span = ((times[2:] - times[:-2]).to(log_gains.dtype) / 2).clamp(min=1)
+        acceleration = (velocity[1:] - velocity[:-1]) / half_span[:, None]
+        total = total + acceleration.square().sum(1).mean()
+    return total
 
 
 def temporal_global_loss(rotations, translations, times, translation_unit=0.01):

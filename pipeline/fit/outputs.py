@@ -21,30 +21,42 @@ VIDEO_FILE = "overlay.mp4"
 
 
 @torch.no_grad()
-def render_all(avatar, clip, shadows, batch_size=8):
+def render_all(avatar, clip, shadows, exposure=False, batch_size=8):
     """Rendered rgb and alpha (F, H, W, C) of every fitted frame; rgb is composited over the
-    clip's background plates (clip_data.background_plates), as a camera would have seen it."""
+    clip's background plates (clip_data.background_plates), as a camera would have seen it;
+    with `exposure` the hand's colour takes each frame's exposure gain first."""
     rgb, alpha = [], []
     for start in range(0, len(clip.frames), batch_size):
         batch = torch.arange(start, min(start + batch_size, len(clip.frames)), device=clip.images.device)
         vertices, _ = avatar.posed(batch)
+        plates = clip.backgrounds[batch].to(vertices.dtype)
         images = render(vertices, avatar.mesh, clip.K, clip.height, clip.width, outputs=("rgb", "alpha"),
                         appearance=avatar.appearance(), light=avatar.light(shadows),
-                        background=clip.backgrounds[batch].to(vertices.dtype))
+                        background=torch.zeros(3, dtype=vertices.dtype, device=vertices.device) if exposure else plates)
+        if exposure:   # over black, the colour is alpha times the hand's: gain it, then composite
+            images["rgb"] = images["rgb"] * avatar.exposure_gain(batch) + (1 - images["alpha"]) * plates
         rgb.append(images["rgb"])
         alpha.append(images["alpha"])
     return torch.cat(rgb), torch.cat(alpha)
 
 
-def image_scores(rgb, alpha, clip):
+def score_renders(problem, shadows):
+    """(rgb, alpha, image_scores) of the problem's avatar in every fitted frame, rendered as the
+    fit sees them (exposure gains, silhouette weights)."""
+    rgb, alpha = render_all(problem.avatar, problem.clip, shadows, problem.exposure_on)
+    return rgb, alpha, image_scores(rgb, alpha, problem.clip, problem.silhouette_weight)
+
+
+def image_scores(rgb, alpha, clip, weight=None):
     """Per-frame silhouette IoU and, inside the mask, L1 and PSNR of the render composited over
     the background plate (render_all) against the frame; MS-SSIM on the masked frames.
     A mask pixel the render misses shows the plate there and counts as an error; a silhouette
-    edge pixel blends hand and background as the photograph's does."""
-    masks = clip.masks
+    edge pixel blends hand and background as the photograph's does. Pixels of zero `weight`
+    (F, H, W, 1) (unrecorded, beyond a mask's cut) count in no figure."""
+    masks = clip.masks if weight is None else clip.masks * weight
     target = clip.images * masks
     composed = rgb * masks
-    iou = metrics.silhouette_iou(alpha, masks)
+    iou = metrics.silhouette_iou(alpha if weight is None else alpha * weight, masks)
     l1 = torch.stack([metrics.l1(composed[i:i + 1], target[i:i + 1], masks[i:i + 1]) for i in range(len(rgb))])
     psnr = torch.stack([metrics.psnr(composed[i:i + 1], target[i:i + 1], masks[i:i + 1]) for i in range(len(rgb))])
     result = {"silhouette_iou": iou.tolist(), "l1": l1.tolist(), "psnr": psnr.tolist(),
@@ -72,10 +84,9 @@ def write_outputs(out, problem, state, held_out=()):
     start = time.time()
     avatar, clip, settings = problem.avatar, problem.clip, problem.settings
     shadows = bool(state.shadows.on)
-    rgb, alpha = render_all(avatar, clip, shadows)
-    scores = image_scores(rgb, alpha, clip)
+    rgb, alpha, scores = score_renders(problem, shadows)
     _write_avatar(out, problem, state, shadows)
-    _write_grid(out / GRID_FILE, clip, rgb)
+    write_grid(out / GRID_FILE, clip, rgb)
     _write_video(out / VIDEO_FILE, clip, rgb)
     last = {}
     for entry in state.history:
@@ -88,7 +99,10 @@ def write_outputs(out, problem, state, held_out=()):
         "shadows": dataclasses.asdict(state.shadows), "events": state.events,
         "perceptual_term": problem.perceptual_name, "ambient": avatar.ambient.item(),
         "light_position": avatar.light_position.detach().cpu().tolist(),
-        "appearance": "known (frozen)" if problem.frozen else "fitted", "texture_fill": state.texture_fill,
+        "appearance": "known (frozen)" if problem.known_appearance else "fitted", "texture_fill": state.texture_fill,
+        "exposure": {"decision": problem.exposure_note,
+                     "gain": torch.exp(avatar.exposure.detach()).cpu().tolist() if problem.exposure_on else None},
+        "mask_cut_frames": problem.mask_cut_frames,
     }
     if len(held_out):
         report[HELD_OUT_FRAMES] = [int(i) for i in held_out]
@@ -126,7 +140,7 @@ def _to_uint8(image):
     return (image.clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
 
 
-def _write_grid(path, clip, rgb, columns=6):
+def write_grid(path, clip, rgb, columns=6):
     """Rows: input, render over the background plate, |difference| x4, for sampled frames."""
     picks = np.unique(np.linspace(0, len(clip.frames) - 1, min(columns, len(clip.frames))).astype(int))
     rows = [clip.images[picks], rgb[picks], ((rgb - clip.images).abs() * 4)[picks]]

@@ -13,14 +13,20 @@ from typing import Callable
 import numpy as np
 import torch
 
+from ..formats.hand_model_file import ELBOW_KEYPOINT_NAME
 from ..formats.initial_estimate import InitialEstimate, read_initial_estimate
 from ..formats.sequence_folder import validate_sequence_folder
 from ..handmodel.lbs import HandModel
 from ..handmodel.uv_atlas import uv_mask as atlas_mask
+from ..render.rasterize import project
 from .avatar import Avatar
 from .clip_data import ClipData, load_clip
+from .mask_cuts import cut_regions
 from .perceptual import perceptual_term
 from .settings import FitSettings
+
+
+EXPOSURE_VARIATION = 0.03    # relative spread of the background's brightness that switches exposure gains on
 
 
 class FitError(ValueError):
@@ -44,6 +50,18 @@ class FitProblem:
     anchor_keypoints: torch.Tensor      # (F, 21, 3) keypoints at the start: the anchor term's targets
     reference_vertices: torch.Tensor    # (F, V, 3) surface at the start: the edge-length term's reference
     frozen: tuple = ()                  # avatar parameters that never move
+    silhouette_weight: torch.Tensor | None = None   # (F, H, W, 1) 0 where masks say nothing (None: 1)
+    mask_cut_frames: int = 0            # frames whose mask is cut across the forearm (mask_cuts.py)
+    exposure_note: str = ""             # how the exposure gains were switched on or off
+    exposure_measured: tuple | None = None   # measured_exposure(clip) when the gains are on: their prior
+
+    @property
+    def exposure_on(self) -> bool:
+        return self.settings.exposure == "on"
+
+    @property
+    def known_appearance(self) -> bool:
+        return "albedo" in self.frozen
 
     @property
     def frames(self) -> np.ndarray:
@@ -76,12 +94,20 @@ def build_problem(sequence, settings: FitSettings, frames, device=None, shared=N
     if "albedo" in shared and shared["albedo"].shape[-1] != settings.texture_size:
         settings = dataclasses.replace(settings, texture_size=int(shared["albedo"].shape[-1]))
     clip = load_clip(sequence, settings.resolution, frames, device=device)
+    settings, exposure_note = _decide_exposure(settings, clip)
     avatar = build_avatar(initial, clip.frames, settings.texture_size, device)
+    exposure_measured = None
+    if settings.exposure == "on":
+        exposure_measured = measured_exposure(clip)
+        with torch.no_grad():   # a gain the photometric term alone had to find would take many steps
+            avatar.exposure.copy_(exposure_measured[0])
     _take_shared(avatar, shared)
+    frozen = tuple(frozen) + (() if settings.exposure == "on" else ("exposure",))
     for name in frozen:
         getattr(avatar, name).requires_grad_(False)
     with torch.no_grad():
         reference_vertices, keypoints = avatar.posed(torch.arange(len(clip.frames), device=device))
+    silhouette_weight, cut_frames = _silhouette_weight(clip, avatar, keypoints)
     topology = avatar.mesh.edges()
     data = avatar.model.data
     uv_mask = torch.as_tensor(atlas_mask(data.uvs, data.faces_uv, settings.texture_size),
@@ -92,7 +118,54 @@ def build_problem(sequence, settings: FitSettings, frames, device=None, shared=N
         perceptual_name, perceptual = perceptual_term(settings.perceptual_weights, device)
     return FitProblem(sequence, settings, initial, clip, avatar, topology.edges,
                       topology.faces[topology.faces[:, 1] >= 0], uv_mask, perceptual, perceptual_name,
-                      keypoints[:, :21].detach(), reference_vertices.detach(), tuple(frozen))
+                      keypoints[:, :21].detach(), reference_vertices.detach(), frozen, silhouette_weight,
+                      cut_frames, exposure_note, exposure_measured)
+
+
+def _decide_exposure(settings, clip):
+    """(settings with exposure "on" or "off", a note): `auto` switches the per-frame exposure
+    gains on when the background's brightness changes over the clip (the camera's automatic
+    exposure or white balance at work) by more than EXPOSURE_VARIATION."""
+    if settings.exposure != "auto":
+        return settings, f"{settings.exposure} (as asked)"
+    brightness = clip.background_brightness
+    brightness = brightness[np.isfinite(brightness)]
+    variation = float(brightness.std() / max(brightness.mean(), 1e-6)) if len(brightness) > 1 else 0.0
+    decided = "on" if variation > EXPOSURE_VARIATION else "off"
+    return dataclasses.replace(settings, exposure=decided), \
+        f"{decided} (auto: the background's brightness varies by {100 * variation:.1f}% over the clip)"
+
+
+def measured_exposure(clip):
+    """((F, 3) log gain, (F,) bool where known) of each frame's camera as its background shows
+    it: the background's colour relative to the clip's geometric mean (a camera's exposure and
+    white balance change the whole picture alike). Frames without a usable background: 0, unknown."""
+    colour = clip.background_colour
+    known = np.isfinite(colour).all(1) & (colour > 1e-3).all(1)
+    log_gain = np.zeros_like(colour)
+    if known.sum() >= 2:
+        log_colour = np.log(colour[known])
+        log_gain[known] = log_colour - log_colour.mean(0)
+    else:
+        known[:] = False
+    device = clip.images.device
+    return (torch.as_tensor(log_gain, dtype=clip.images.dtype, device=device),
+            torch.as_tensor(known, device=device))
+
+
+def _silhouette_weight(clip, avatar, keypoints):
+    """((F, H, W, 1) weight or None, frames with a mask cut): 0 outside the recorded pixels and
+    beyond a cut across the forearm (mask_cuts.py, hand + forearm models only)."""
+    weight = None if clip.valid is None else clip.valid.expand_as(clip.masks).clone()
+    names = avatar.model.data.keypoint_names
+    if ELBOW_KEYPOINT_NAME not in names:
+        return weight, 0
+    points = project(keypoints[:, [0, names.index(ELBOW_KEYPOINT_NAME)]], clip.K).cpu().numpy()
+    cuts = cut_regions(clip.masks[..., 0].cpu().numpy() > 0.5, points[:, 0], points[:, 1])
+    if not cuts.any():
+        return weight, 0
+    kept = torch.as_tensor(~cuts[..., None], dtype=clip.masks.dtype, device=clip.masks.device)
+    return (kept if weight is None else weight * kept), int(cuts.any((1, 2)).sum())
 
 
 def build_avatar(initial: InitialEstimate, frames, texture_size, device=None) -> Avatar:

@@ -7,6 +7,15 @@ import sys
 import time
 
 
+def progress_log(kind):
+    """A log(message) function that speaks as Progress(kind).log does, outside any bar."""
+    if kind == "none":
+        return lambda message: None
+    if kind == "jsonl":
+        return lambda message: print(json.dumps({"event": "log", "message": message}), flush=True)
+    return lambda message: print(message, file=sys.stderr, flush=True)
+
+
 class Progress:
     """Counts steps towards `total`; `kind` is "bar", "jsonl" or "none"."""
 
@@ -29,6 +38,13 @@ class Progress:
             finite = loss if math.isfinite(loss) else None
             print(json.dumps({"event": "progress", "stage": stage, "step": step, "loss": finite, "done": self.done,
                               "total": self.total, "seconds_left": round(left, 1)}), flush=True)
+
+    def extend(self, steps):
+        """More steps than planned (a stage that found it needs them)."""
+        self.total += steps
+        if self.bar is not None:
+            self.bar.total = self.total
+            self.bar.refresh()
 
     def log(self, message):
         if self.kind == "jsonl":

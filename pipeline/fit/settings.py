@@ -9,6 +9,8 @@ WEIGHTS = {  # appendix Table C.1
     "photometric": 1.0, "perceptual": 1.0, "texture": 2.0, "normal_map": 0.5,
     # ours, not in the table: hands move smoothly at video rates (losses.temporal_*)
     "temporal_pose": 10.0, "temporal_global": 1.0,
+    "displacement_smoothness": 0.0,   # the displacement field's own roughness (losses.py)
+    "exposure": 1.0,                  # per-frame exposure gains: smooth over time, average 1 (when on)
 }
 
 
@@ -41,6 +43,7 @@ class FitSettings:
     lr_displacement: float = 1e-4   # metres per step
     lr_appearance: float = 1e-2
     shadows: str = "auto"          # auto | on | off
+    exposure: str = "auto"         # per-frame exposure gains: auto | on | off (problem.py decides auto)
     max_frames: int = 60           # longer clips are subsampled, keeping view coverage
     weights: dict = dataclasses.field(default_factory=lambda: dict(WEIGHTS))
     perceptual_weights: str | None = None   # local VGG16 file; default: weight-free pyramid

@@ -12,7 +12,7 @@ import math
 
 import torch
 
-from .avatar import APPEARANCE, PER_FRAME
+from .avatar import APPEARANCE, PER_FRAME, POSE
 from .checkpoint import FitState
 from .energy import batch_energy
 from .problem import FitProblem
@@ -38,11 +38,11 @@ def parameter_groups(problem: FitProblem, stage: Stage):
         groups = [(("global_orient", "pose"), s.lr_align_rotation), (("transl",), s.lr_align_translation),
                   (("betas",), s.lr_betas)]
     elif stage.geometry:
-        groups = [(PER_FRAME, s.lr_geometry), (("betas",), s.lr_betas), (("displacement",), s.lr_displacement)]
+        groups = [(POSE, s.lr_geometry), (("betas",), s.lr_betas), (("displacement",), s.lr_displacement)]
     else:
         groups = []
     if stage.appearance:
-        groups.append((APPEARANCE, s.lr_appearance))
+        groups.append((APPEARANCE + ("exposure",), s.lr_appearance))
     result = []
     for names, lr in groups:
         parameters = [getattr(problem.avatar, name) for name in names if name not in problem.frozen]

@@ -10,6 +10,11 @@ the Blender add-on use it too; reading pixels lazily imports OpenCV). Layout:
     gt.npz               ground truth (synthetic clips only), see GroundTruth
     gt_albedo.png        ground-truth albedo, 8-bit sRGB, in the hand model's UV layout
 
+Pixels the camera never recorded (where an import's crop reached past the video's edge) are
+marked invalid: `valid_region` [x0, y0, x1, y1] in sequence.json is the rectangle of recorded
+pixels (pixel edges; absent: every pixel), the same in every frame; validity_mask() gives it
+as an image. Invalid pixels hold black and count in no image term or score.
+
 Conventions (DESIGN.md): metres; the camera frame is OpenCV's (x right, y down, z forward) and
 is also the world frame of the ground truth (camera at the origin, R = I, t = 0), so posing the
 hand model with (betas, pose, global_orient, transl) of a frame gives the hand in camera
@@ -33,6 +38,7 @@ FORMAT_VERSION = 1
 SEQUENCE_FILE = "sequence.json"
 GT_FILE = "gt.npz"
 GT_ALBEDO_FILE = "gt_albedo.png"
+MASK_PREVIEW_FILE = "mask_preview.png"   # masks over sampled frames, for a person to check (import-video)
 FRAME_PATTERN = "rgb/{index:06d}.png"
 MASK_PATTERN = "mask/{index:06d}.png"
 GT_FORMAT_VERSION = 1
@@ -60,6 +66,7 @@ class SequenceInfo:
     ground_truth: str | None = None     # file name of the ground truth (gt.npz), synthetic clips
     albedo: str | None = None           # file name of the ground-truth albedo (gt_albedo.png)
     metadata: dict = dataclasses.field(default_factory=dict)  # free-form: generator, settings ...
+    valid_region: list | None = None    # [x0, y0, x1, y1] recorded pixels (None: all of them)
 
     def to_json(self) -> dict:
         return {
@@ -68,6 +75,7 @@ class SequenceInfo:
             "hand_side": self.hand_side, "K": np.asarray(self.K, dtype=float).tolist(),
             "frames": self.frames, "masks": self.masks, "ground_truth": self.ground_truth,
             "albedo": self.albedo, "metadata": self.metadata,
+            **({"valid_region": [int(v) for v in self.valid_region]} if self.valid_region is not None else {}),
         }
 
     def validate(self) -> None:
@@ -93,8 +101,21 @@ class SequenceInfo:
                 problems.append(f"{name}.path is missing")
             elif kind not in ("images", "video"):
                 problems.append(f"{name}.kind must be 'images' or 'video'")
+        if self.valid_region is not None:
+            x0, y0, x1, y1 = self.valid_region
+            if not (0 <= x0 < x1 <= self.width and 0 <= y0 < y1 <= self.height):
+                problems.append(f"valid_region {list(self.valid_region)} must lie inside the "
+                                f"{self.width}x{self.height} image and hold pixels")
         if problems:
             raise SequenceFolderError("invalid sequence.json: " + "; ".join(problems))
+
+
+def validity_mask(info: SequenceInfo) -> np.ndarray:
+    """(H, W) bool: the pixels the camera recorded (info.valid_region; all when absent)."""
+    valid = np.zeros((info.height, info.width), bool)
+    x0, y0, x1, y1 = info.valid_region if info.valid_region is not None else (0, 0, info.width, info.height)
+    valid[y0:y1, x0:x1] = True
+    return valid
 
 
 def intrinsics_from_json(entry: dict) -> np.ndarray:
@@ -138,7 +159,7 @@ def read_sequence_info(folder) -> SequenceInfo:
         fps=float(entry["fps"]), width=int(entry["width"]), height=int(entry["height"]),
         frame_count=int(entry["frame_count"]), hand_side=entry["hand_side"], K=intrinsics_from_json(entry),
         frames=entry["frames"], masks=entry.get("masks"), ground_truth=entry.get("ground_truth"),
-        albedo=entry.get("albedo"), metadata=entry.get("metadata", {}))
+        albedo=entry.get("albedo"), metadata=entry.get("metadata", {}), valid_region=entry.get("valid_region"))
     info.validate()
     return info
 

@@ -232,13 +232,16 @@ class _ClipFit:
                 shared = shared + temporal_weight * motion.square().sum(-1).mean(-1)[step].sum() / len(order)
         return per_frame, shared
 
-    def optimise(self, steps, temporal_weight, shape=True):
+    def optimise(self, steps, temporal_weight, shape=True, progress=None, stage=""):
         optimiser = torch.optim.Adam(self.parameter_groups(shape))
-        for _ in range(steps):
+        for step in range(steps):
             optimiser.zero_grad()
             per_frame, shared = self.energy(temporal_weight)
-            (per_frame.mean() + shared).backward()
+            loss = per_frame.mean() + shared
+            loss.backward()
             optimiser.step()
+            if progress is not None:
+                progress.update(stage, step, float(loss.detach()))
 
     def state(self):
         """Detached (rotation, transl, full pose) of every hypothesis."""
@@ -246,8 +249,10 @@ class _ClipFit:
             return self.rotation().clone(), self.transl.detach().clone(), self.full_pose().clone()
 
 
-def fit_initial_estimate(keypoints, K, mode="hand", side="right", settings=None, model=None, log=None):
-    """InitialEstimate from Keypoints2D (formats/keypoint_file.py) and K (3, 3) pixels."""
+def fit_initial_estimate(keypoints, K, mode="hand", side="right", settings=None, model=None, log=None,
+                         progress=None):
+    """InitialEstimate from Keypoints2D (formats/keypoint_file.py) and K (3, 3) pixels;
+    `progress` (fit/progress.Progress of planned_steps(settings), or None) counts the steps."""
     settings = settings or InitialFitSettings()
     log = log or (lambda message: None)
     dtype = torch.float64
@@ -274,7 +279,7 @@ def fit_initial_estimate(keypoints, K, mode="hand", side="right", settings=None,
     fit = _ClipFit(model, two(pixels, pixels), K, two(weights, weights), None if world is None else two(world, world),
                    two(rotation, flipped), two(transl, flipped_transl), torch.zeros(2 * frames, 16, 3, dtype=dtype),
                    betas, settings, None)
-    fit.optimise(settings.pose_steps, temporal_weight=0.0)
+    fit.optimise(settings.pose_steps, temporal_weight=0.0, progress=progress, stage="pose and shape")
     with torch.no_grad():
         per_frame, _ = fit.energy(0.0)
     first_better = per_frame[:frames] <= per_frame[frames:]
@@ -288,13 +293,15 @@ def fit_initial_estimate(keypoints, K, mode="hand", side="right", settings=None,
     restarted, threshold = [], 0.0
     for temporal_weight, steps in ((settings.weight_temporal, settings.pose_steps // 2),
                                    (settings.smooth_temporal, settings.smooth_steps)):
-        fit.optimise(steps, temporal_weight=temporal_weight)
+        fit.optimise(steps, temporal_weight=temporal_weight, progress=progress, stage="whole clip")
         residual = fit.residual_px()
         threshold = max(settings.restart_factor * float(residual.median()),
                         settings.restart_min_fraction * float(_hand_size_px(pixels)))
         high = torch.nonzero(residual > threshold).flatten()
         if len(high):
-            fit = _restart(fit, high, residual, settings)
+            if progress is not None:
+                progress.extend(settings.restart_steps)
+            fit = _restart(fit, high, residual, settings, progress)
             restarted = sorted(set(restarted) | set(high.tolist()))
             log(f"restarted frames {high.tolist()} (residual above {threshold:.1f} px)")
     rotations, transls, poses = fit.state()
@@ -314,7 +321,12 @@ def fit_initial_estimate(keypoints, K, mode="hand", side="right", settings=None,
                   "settings": dataclasses.asdict(settings)})
 
 
-def _restart(fit, frames, residual, settings):
+def planned_steps(settings):
+    """Optimiser steps of fit_initial_estimate without restarts (each restart adds restart_steps)."""
+    return settings.pose_steps + settings.pose_steps // 2 + settings.smooth_steps
+
+
+def _restart(fit, frames, residual, settings, progress=None):
     """Re-fit `frames` (indices) from the nearest better neighbour's pose and from their palm flip
     (shape fixed, no temporal term); keep per frame whichever ends with the lowest residual."""
     rotation, transl, pose = fit.state()
@@ -330,7 +342,7 @@ def _restart(fit, frames, residual, settings):
     repeat = lambda t: None if t is None else t[frames].repeat(count, *([1] * (t.dim() - 1)))
     trial = _ClipFit(fit.model, repeat(fit.pixels), fit.K, repeat(fit.weights), repeat(fit.world),
                      stack(0), stack(1), stack(2), fit.betas.detach(), settings, None)
-    trial.optimise(settings.restart_steps, temporal_weight=0.0, shape=False)
+    trial.optimise(settings.restart_steps, temporal_weight=0.0, shape=False, progress=progress, stage="restarts")
     with torch.no_grad():
         per_frame, _ = trial.energy(0.0)
     best = per_frame.reshape(count, len(frames)).argmin(0) * len(frames) + torch.arange(len(frames))

@@ -52,8 +52,11 @@ def choose_mode(folder, info, keypoints):
 
 
 def initialise_sequence(folder, method="mediapipe", keypoint_file=None, mode="auto", noise_degrees=10.0,
-                        noise_translation_m=0.01, seed=0, log=print, warn=None):
-    """Write folder/init.npz; returns the InitialEstimate."""
+                        noise_translation_m=0.01, seed=0, log=print, warn=None, progress="none"):
+    """Write folder/init.npz; returns the InitialEstimate. `progress` ("bar", "jsonl" or "none",
+    fit/progress.py) shows the MediaPipe detection and the initial fit step by step."""
+    from ..fit.progress import Progress
+
     warn = warn or log
     folder = Path(folder)
     info = seq.validate_sequence_folder(folder)
@@ -73,17 +76,24 @@ def initialise_sequence(folder, method="mediapipe", keypoint_file=None, mode="au
             log(f"detecting keypoints in {info.frame_count} frames with MediaPipe Hands")
             from ..detection.mediapipe_hands import detect_sequence_keypoints
 
-            keypoints = detect_sequence_keypoints(folder, info)
+            with Progress(progress, info.frame_count) as bar:
+                keypoints = detect_sequence_keypoints(
+                    folder, info, on_frame=lambda: bar.update("MediaPipe", bar.done, float("nan")))
             write_keypoint_file(folder / KEYPOINTS_FILE, keypoints)
         else:
             keypoints = read_keypoint_file(keypoint_file, info.frame_count, info.width, info.height)
         _report_keypoints(keypoints, info, log, warn)
         if mode == "auto":
             mode, reason = choose_mode(folder, info, keypoints)
-            log(f"template mode: {reason}")
-        from .initial_fit import fit_initial_estimate
+            log(f"template mode: {reason}" + (" - the fit will model the forearm as far as the masks show "
+                                               "it; harp init --mode hand fits the hand alone" if mode == "arm" else ""))
+        from .initial_fit import InitialFitSettings, fit_initial_estimate, planned_steps
 
-        estimate = fit_initial_estimate(keypoints, info.K, mode=mode, side=info.hand_side, log=log)
+        settings = InitialFitSettings()
+        log(f"initial fit of pose and shape to the keypoints ({planned_steps(settings)} steps)")
+        with Progress(progress, planned_steps(settings)) as bar:
+            estimate = fit_initial_estimate(keypoints, info.K, mode=mode, side=info.hand_side, settings=settings,
+                                            log=bar.log if progress != "none" else log, progress=bar)
     path = write_initial_estimate(folder, estimate)
     log(f"wrote {path}")
     return estimate

@@ -1,0 +1,108 @@
+"""Benchmark: a real video, from the footage alone, through the whole pipeline.
+
+    .venv/bin/python benchmarks/bench_real_footage.py VIDEO [--work DIR] [--preset fast]
+        [--hold-out-every 10] [--size 448] [--max-frames N] [--pictures DIR] [--threads 1]
+
+1. `harp import-video VIDEO` without masks (MediaPipe landmarks + GrabCut make them),
+2. `harp init` (MediaPipe keypoints, the initial fit),
+3. `harp fit --hold-out-every N` with the preset,
+4. `harp evaluate`: the held-out frames fitted in pose and light, scored against the built-in
+   masks and the frames (PSNR / L1 / MS-SSIM in the mask, silhouette IoU).
+Prints wall time of each step and the figures; writes DIR/bench_real_footage.json. With
+`--pictures DIR2`: DIR2/real_masks.png (masks over frames), real_fit_grid.png (fitted frames),
+real_held_out_grid.png (held-out frames). Finished steps are kept: rerun to resume.
+Measured on the MediaPipe sample video (see docs/real_footage.md).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from pipeline.evaluate import evaluate_fit  # noqa: E402
+from pipeline.evaluate.evaluation import HELD_OUT_PICTURE  # noqa: E402
+from pipeline.fit import fit  # noqa: E402
+from pipeline.fit.outputs import GRID_FILE  # noqa: E402
+from pipeline.formats import sequence_folder as seq  # noqa: E402
+from pipeline.formats.fit_report import read_report  # noqa: E402
+from pipeline.init import initialise_sequence  # noqa: E402
+from pipeline.sequence_import import import_video  # noqa: E402
+
+
+def log(message):
+    print(f"  {message}", flush=True)
+
+
+def timed(figures, name, work):
+    start = time.perf_counter()
+    result = work()
+    figures[f"{name}_seconds"] = round(time.perf_counter() - start, 1)
+    print(f"{name}: {figures[f'{name}_seconds']:.1f} s", flush=True)
+    return result
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("video")
+    parser.add_argument("--work", default="bench_real_footage", help="working folder (default: bench_real_footage)")
+    parser.add_argument("--preset", default="fast", choices=("fast", "balanced", "full"))
+    parser.add_argument("--hold-out-every", type=int, default=10)
+    parser.add_argument("--size", type=int, default=448)
+    parser.add_argument("--max-frames", type=int, default=None)
+    parser.add_argument("--pictures", default=None, help="also copy the pictures here (e.g. docs/)")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1, pinned runs)")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    work = Path(args.work)
+    work.mkdir(parents=True, exist_ok=True)
+    sequence, avatar = work / "sequence", work / f"avatar_{args.preset}"
+    figures = {"video": str(args.video), "preset": args.preset, "threads": args.threads}
+
+    if not (sequence / seq.SEQUENCE_FILE).is_file():
+        timed(figures, "import", lambda: import_video(args.video, None, sequence, size=args.size,
+                                                      max_frames=args.max_frames, log=log))
+    info = seq.validate_sequence_folder(sequence)
+    figures.update(frames=info.frame_count, size=info.width, crop=info.metadata.get("crop"),
+                   source_size=info.metadata.get("source_size"), valid_region=info.valid_region)
+    if not (sequence / "init.npz").is_file():
+        timed(figures, "init", lambda: initialise_sequence(sequence, "mediapipe", log=log))
+    if not (avatar / "report.json").is_file():
+        timed(figures, "fit", lambda: fit(sequence, avatar, preset=args.preset, progress="bar",
+                                          hold_out_every=args.hold_out_every, device="cpu"))
+    report = read_report(avatar)
+    evaluation = timed(figures, "evaluate", lambda: evaluate_fit(avatar, sequence, device="cpu", progress="bar"))
+
+    fitted, held = report["metrics"], evaluation["held_out"]["metrics"]
+    figures.update(
+        mode=json.loads((avatar / "avatar.json").read_text()).get("mode"), fit_frames=len(report["frames"]), exposure=report.get("exposure", {}).get("decision"),
+        mask_cut_frames=report.get("mask_cut_frames"), shadows="on" if report.get("shadows", {}).get("on") else "off",
+        fitted={"psnr_mean": fitted["psnr_mean"], "iou_mean": float(np.mean(fitted["silhouette_iou"])),
+                "iou_min": float(np.min(fitted["silhouette_iou"])), "l1_mean": fitted["l1_mean"],
+                "ms_ssim_mean": fitted.get("ms_ssim_mean")},
+        held_out={"frames": len(evaluation["held_out"]["frames"]), "psnr_mean": held["psnr_mean"],
+                  "iou_mean": held["silhouette_iou_mean"], "iou_min": float(np.min(held["silhouette_iou"])),
+                  "l1_mean": held["l1_mean"], "ms_ssim_mean": held.get("ms_ssim_mean")})
+    figures["fit_seconds_reported"] = report.get("total_seconds")
+    (work / "bench_real_footage.json").write_text(json.dumps(figures, indent=2))
+    print(json.dumps(figures, indent=2))
+    if args.pictures:
+        target = Path(args.pictures)
+        target.mkdir(parents=True, exist_ok=True)
+        for source, name in ((sequence / seq.MASK_PREVIEW_FILE, "real_masks.png"),
+                             (avatar / GRID_FILE, "real_fit_grid.png"),
+                             (avatar / HELD_OUT_PICTURE, "real_held_out_grid.png")):
+            shutil.copyfile(source, target / name)
+            print(f"wrote {target / name}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,124 @@
+"""Hand (and forearm) masks made from the frames alone, for footage that comes without masks.
+
+MediaPipe Hands (offline, mediapipe_hands.py) finds the 21 landmarks in a frame; from them,
+in units of the palm's length L (wrist to middle knuckle):
+
+    sure hand        the bones of the fingers and the palm drawn thin (well inside the skin)
+    probably hand    the landmarks' hull grown by HULL_GROWTH L, and the forearm corridor: from
+                     the wrist away from the fingers, FOREARM_WIDTH L wide
+    probably not     a ring around those, and the forearm corridor's pixels beyond the wrist whose
+                     colour is far from the skin's (a sleeve, a watch strap: chroma
+                     farther than NOT_SKIN standard deviations from the sure-hand pixels')
+    sure not         everything farther away
+
+OpenCV's GrabCut then separates hand from background with colour models learned from those
+seeds, in a window around the hand; the result is the connected part that holds the palm,
+with its holes closed. Frames where MediaPipe finds no hand take the landmarks of the nearest
+frames in time (interpolated); a clip where it finds none fails with one line.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from scipy.ndimage import label as ndimage_label
+
+FINGERS = ((0, 1, 2, 3, 4), (0, 5, 6, 7, 8), (9, 10, 11, 12), (13, 14, 15, 16), (0, 17, 18, 19, 20))
+PALM = (0, 1, 5, 9, 13, 17)
+BONE_WIDTH = 0.07        # sure-hand bone lines, in palm lengths
+HULL_GROWTH = 0.22       # probable hand: the landmarks' hull grown by this
+FOREARM_WIDTH = 0.95     # probable forearm corridor width
+FOREARM_LENGTH = 2.6     # and length beyond the wrist
+RING = 0.6               # probable background ring beyond the probable hand
+NOT_SKIN = 3.5           # chroma distance (Mahalanobis, YCrCb) beyond which the forearm is not skin
+SLEEVE_START = 0.3       # ... tested from this far beyond the wrist (palm lengths)
+GRABCUT_ITERATIONS = 4
+
+
+def frame_mask(rgb, points):
+    """(H, W) bool hand mask of an RGB frame (H, W, 3) uint8 given its 21 landmarks (21, 2) in
+    pixels (corner origin)."""
+    height, width = rgb.shape[:2]
+    points = np.asarray(points, dtype=np.float64)
+    palm = float(np.linalg.norm(points[9] - points[0]))
+    if not np.isfinite(palm) or palm < 2:
+        return np.zeros((height, width), bool)
+    seeds = np.full((height, width), cv2.GC_BGD, np.uint8)
+    probable = np.zeros((height, width), np.uint8)
+    hull = cv2.convexHull(np.round(points).astype(np.int32))
+    cv2.fillConvexPoly(probable, hull, 1)
+    probable = cv2.dilate(probable, _disc(HULL_GROWTH * palm))
+    axis = points[0] - points[9]
+    axis /= max(np.linalg.norm(axis), 1e-9)
+    across = np.array([-axis[1], axis[0]]) * FOREARM_WIDTH * palm / 2
+    end = points[0] + axis * FOREARM_LENGTH * palm
+    corridor = np.round([points[0] + across, points[0] - across, end - across, end + across]).astype(np.int32)
+    cv2.fillConvexPoly(probable, corridor, 1)
+    ring = cv2.dilate(probable, _disc(RING * palm))
+    seeds[ring > 0] = cv2.GC_PR_BGD
+    seeds[probable > 0] = cv2.GC_PR_FGD
+    sure = np.zeros((height, width), np.uint8)
+    thickness = max(1, int(round(BONE_WIDTH * palm)))
+    for chain in FINGERS:
+        cv2.polylines(sure, [np.round(points[list(chain)]).astype(np.int32)], False, 1, thickness)
+    centre = points[list(PALM)].mean(0)
+    shrunk = np.round(centre + 0.6 * (points[list(PALM)] - centre)).astype(np.int32)
+    cv2.fillConvexPoly(sure, cv2.convexHull(shrunk), 1)
+    seeds[sure > 0] = cv2.GC_FGD
+    rows, cols = np.mgrid[0:height, 0:width]
+    beyond_wrist = ((cols + 0.5 - points[0, 0]) * axis[0] + (rows + 0.5 - points[0, 1]) * axis[1]) > SLEEVE_START * palm
+    seeds[(seeds == cv2.GC_PR_FGD) & beyond_wrist & _not_skin(rgb, sure > 0)] = cv2.GC_BGD
+    x0, y0, w, h = cv2.boundingRect((ring > 0).astype(np.uint8))
+    if w < 4 or h < 4:
+        return np.zeros((height, width), bool)
+    window = (slice(y0, y0 + h), slice(x0, x0 + w))
+    labels = seeds[window].copy()
+    if not ((labels == cv2.GC_BGD) | (labels == cv2.GC_PR_BGD)).any():
+        labels[0, :] = labels[-1, :] = labels[:, 0] = labels[:, -1] = cv2.GC_PR_BGD
+    background, foreground = np.zeros((1, 65)), np.zeros((1, 65))
+    cv2.grabCut(np.ascontiguousarray(rgb[window]), labels, None, background, foreground, GRABCUT_ITERATIONS,
+                cv2.GC_INIT_WITH_MASK)
+    hand = np.zeros((height, width), bool)
+    hand[window] = (labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD)
+    return _clean(hand, centre)
+
+
+def _not_skin(rgb, skin):
+    """(H, W) bool: pixels whose chroma (Cr, Cb) lies more than NOT_SKIN standard deviations
+    (Mahalanobis) from that of the `skin` pixels (H, W) bool."""
+    chroma = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2YCrCb)[..., 1:].astype(np.float64)
+    samples = chroma[skin]
+    if len(samples) < 10:
+        return np.zeros(skin.shape, bool)
+    offset = chroma - samples.mean(0)
+    inverse = np.linalg.inv(np.cov(samples.T) + 4.0 * np.eye(2))     # at least 2 levels of spread
+    distance = np.einsum("...i,ij,...j->...", offset, inverse, offset)
+    return distance > NOT_SKIN ** 2
+
+
+def _disc(radius):
+    size = 2 * max(1, int(round(radius))) + 1
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+
+
+def _clean(hand, centre):
+    """The connected part of the mask nearest the palm's centre, its holes closed."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(hand.astype(np.uint8), connectivity=4)
+    if count <= 1:
+        return hand
+    x, y = np.clip(np.round(centre).astype(int), 0, [hand.shape[1] - 1, hand.shape[0] - 1])
+    keep = labels[y, x] or 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    part = labels == keep
+    background, _ = ndimage_label(~part)
+    outer = set(np.unique(np.concatenate([background[0], background[-1], background[:, 0], background[:, -1]])))
+    return part | (~np.isin(background, list(outer)) & ~part)
+
+
+def clip_masks(frames, side, detector=None, log=None):
+    """(F, H, W) bool masks of an iterable of RGB frames of one hand `side`; landmarks missing in a
+    frame are interpolated from its neighbours. Returns (masks, detected (F,) bool)."""
+    from .mediapipe_hands import detect_keypoints
+
+    frames = list(frames)
+    keypoints = detect_keypoints(frames, side, detector)          # raises KeypointError without any hand
+    masks = np.stack([frame_mask(rgb, points) for rgb, points in zip(frames, keypoints.points)])
+    return masks, keypoints.detected
