@@ -37,6 +37,18 @@ def test_fit_writes_a_complete_avatar(tiny_clip, tmp_path):
     assert all(np.isfinite(scores["psnr"])) and 0 < scores["silhouette_iou_min"] <= 1
     assert json.loads((out / "report.json").read_text())["stage_seconds"]["geometry"] > 0
 
+    # a checkpoint of the previous version (no exposure gains) still reads as a finished fit,
+    # with its gains off, and refuses to be resumed in one line
+    saved = torch.load(out / CHECKPOINT_FILE, weights_only=True)
+    del saved["avatar"]["exposure"], saved["settings"]["exposure"]
+    torch.save({**saved, "version": 2}, out / CHECKPOINT_FILE)
+    older = load_checkpoint(out / CHECKPOINT_FILE)
+    assert older.settings.exposure == "off" and older.avatar["exposure"].abs().max() == 0
+    assert older.avatar["exposure"].shape == (4, 3)
+    with pytest.raises(fitting.FitError, match="older harp version .*fit again without --resume"):
+        fitting.fit(tiny_clip, out, resume=True, progress="none", max_steps=4, texture_size=64, batch_size=2,
+                    resolution=96)
+
 
 def test_interrupt_then_resume_reaches_the_same_result(tiny_clip, tmp_path, monkeypatch):
     """Ctrl-C in the middle of stage two saves a checkpoint; --resume finishes the fit with the

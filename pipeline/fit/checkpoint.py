@@ -19,7 +19,8 @@ from .settings import FitSettings
 
 CHECKPOINT_FILE = "checkpoint.pt"
 CHECKPOINT_FORMAT = "harp-fit-checkpoint"
-CHECKPOINT_VERSION = 2
+CHECKPOINT_VERSION = 3          # 3: per-frame exposure gains (avatar "exposure", settings.exposure)
+READABLE_VERSIONS = (2, 3)      # a finished fit of version 2 reads as one with its gains off
 
 
 @dataclasses.dataclass
@@ -76,6 +77,7 @@ class Checkpoint:
     avatar: dict                        # the Avatar's state_dict
     optimiser: dict | None              # the stage's optimiser state_dict; None at a stage's end
     generator: torch.Tensor             # torch.Generator state
+    version: int = CHECKPOINT_VERSION   # as written; an older one can be read but not resumed
 
 
 def save_checkpoint(path, checkpoint: Checkpoint) -> Path:
@@ -98,7 +100,14 @@ def load_checkpoint(path, device=None) -> Checkpoint:
         saved = torch.load(path, map_location=device, weights_only=True)
     except Exception as error:  # truncated, not a torch file, unsafe content
         raise FitError(f"cannot read the checkpoint {path}: {str(error).splitlines()[0]}") from None
-    if saved.get("format") != CHECKPOINT_FORMAT or saved.get("version") != CHECKPOINT_VERSION:
-        raise FitError(f"{path} is a checkpoint of an older harp version: fit again without --resume")
-    return Checkpoint(FitSettings.from_dict(saved["settings"]), FitState.from_dict(saved["state"]),
-                      saved["avatar"], saved["optimiser"], saved["generator"])
+    version = saved.get("version")
+    if saved.get("format") != CHECKPOINT_FORMAT or version not in READABLE_VERSIONS:
+        raise FitError(f"{path} is a checkpoint of another harp version ({version}; this one reads "
+                       f"{', '.join(map(str, READABLE_VERSIONS))}): fit again")
+    settings, avatar = dict(saved["settings"]), dict(saved["avatar"])
+    if version == 2:     # before exposure gains: they were off
+        settings["exposure"] = "off"
+        avatar["exposure"] = torch.zeros(len(avatar["global_orient"]), 3, dtype=avatar["global_orient"].dtype,
+                                         device=avatar["global_orient"].device)
+    return Checkpoint(FitSettings.from_dict(settings), FitState.from_dict(saved["state"]),
+                      avatar, saved["optimiser"], saved["generator"], version)

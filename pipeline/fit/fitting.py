@@ -19,7 +19,7 @@ import torch
 from ..formats.initial_estimate import read_initial_estimate
 from ..formats.sequence_folder import validate_sequence_folder
 from .avatar import APPEARANCE, SHAPE
-from .checkpoint import CHECKPOINT_FILE, Checkpoint, FitState, load_checkpoint, save_checkpoint
+from .checkpoint import CHECKPOINT_FILE, CHECKPOINT_VERSION, Checkpoint, FitState, load_checkpoint, save_checkpoint
 from .frames import held_out_frames, select_frames
 from .outputs import write_outputs
 from .problem import FitError, FitProblem, build_problem
@@ -157,6 +157,9 @@ class _CheckpointSaver:
         if not self.path.is_file():
             raise FitError(f"nothing to resume: no {self.path}")
         saved = load_checkpoint(self.path, self.problem.device)
+        if saved.version != CHECKPOINT_VERSION:
+            raise FitError(f"{self.path} was written by an older harp version (checkpoint {saved.version}): "
+                           "fit again without --resume")
         if vars(saved.settings) != vars(self.problem.settings):
             changed = sorted(k for k, v in vars(saved.settings).items() if vars(self.problem.settings).get(k) != v)
             raise FitError(f"{self.path} was written with other settings ({', '.join(changed)}): "
