@@ -61,9 +61,16 @@ def plot_curves(folders, out, figures=DEFAULT_FIGURES, labels=None, title=None, 
     axes.flat[0].legend(fontsize=8)
     if title:
         figure.suptitle(title)
+    return save_figure(figure, out)
+
+
+def save_figure(figure, path):
+    """Lay out, write as PNG (making its folder) and close a matplotlib figure; returns the path."""
+    import matplotlib.pyplot as plt
+
     figure.tight_layout()
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(out, dpi=110)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=110)
     plt.close(figure)
-    return out
+    return path

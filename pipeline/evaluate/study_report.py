@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .plot import plot_curves
+from .plot import plot_curves, save_figure
 
 STUDY_FILE, STUDY_JSON, PLOTS = "study.md", "study.json", "plots"
 
@@ -132,12 +132,7 @@ def refinement_bars(section, path):
     axis.set_ylabel("joint error, Procrustes-aligned (mm)")
     axis.set_title("pose refinement: mean over clips")
     axis.legend(fontsize=7)
-    figure.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
-    return path
+    return save_figure(figure, path)
 
 
 def refinement_curves(section, out):
