@@ -65,7 +65,7 @@ def _study(args):
 
     study = run_study(args.dataset, args.out, clips=args.clips, quick=args.quick, preset=args.preset,
                       sections=tuple(args.sections.split(",")), progress=args.progress,
-                      runtime_presets=tuple(args.runtime_presets.split(",")))
+                      runtime_presets=tuple(args.runtime_presets.split(",")), runtime_frames=args.runtime_frames)
     print(f"wrote {Path(args.out) / 'study.md'} ({study['seconds'] / 60:.0f} min)")
 
 
@@ -171,6 +171,9 @@ def build_parser():
                        help="which parts to run (default: refinement,runtime,stability)")
     study.add_argument("--runtime-presets", default="fast,balanced,full",
                        help="presets compared in the run-time section (default: fast,balanced,full)")
+    study.add_argument("--runtime-frames", type=int, default=30, metavar="N",
+                       help="frames of the clip every preset fits in the run-time section, spread evenly "
+                            "(default: 30; 0: each preset's own number)")
     study.add_argument("--progress", choices=("bar", "jsonl", "none"), default="none",
                        help="progress of each fit (default: none; the study logs each run)")
     study.set_defaults(run=_study)

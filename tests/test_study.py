@@ -14,6 +14,8 @@ from pipeline.evaluate.study import CASES, run_study
 from pipeline.fit import fit
 from pipeline.fit.checkpoint import CHECKPOINT_FILE, load_checkpoint, save_checkpoint
 from pipeline.fit.fitting import KNOWN_APPEARANCE
+from pipeline.fit.settings import settings_for
+from pipeline.formats.fit_report import read_report
 from pipeline.formats.fit_curve import read_curve
 from pipeline.init import initialise_sequence
 from synth.motions import FIST, OPEN, RELAXED
@@ -123,13 +125,20 @@ def test_harp_plot_draws_the_curves(curve_fit, tmp_path):
     assert main(["plot", str(tmp_path / "missing"), "--out", str(picture)]) == 1
 
 
+def test_full_preset_counts_its_epochs_over_the_frames_it_fits():
+    assert settings_for("full", 150).steps == (900, 450, 450)                  # 9 batches of 18 per epoch
+    assert settings_for("full", 150, max_frames=30).steps == (200, 100, 100)   # 2 batches per epoch
+    assert settings_for("full", 150, max_frames=30, steps=(1, 2, 3)).steps == (1, 2, 3)
+    assert settings_for("fast", 150, max_frames=30).steps == settings_for("fast", 150).steps
+
+
 def test_study_on_two_tiny_clips_fills_every_cell(tmp_path):
     dataset = tmp_path / "dataset"
     write_clip(dataset / "tiny_flip_front_ambient", OPEN, size=96, frames=5, turn_degrees=30)
     fingers = np.stack([OPEN + (FIST - OPEN) * t for t in np.linspace(0, 0.5, 5)])
     write_clip(dataset / "tiny_fingers_front_ambient", fingers, size=96, frames=5, turn_degrees=5)
     options = dict(max_steps=2, resolution=96, texture_size=64, batch_size=2, device="cpu")
-    study = run_study(dataset, tmp_path / "study", quick=True, log=lambda message: None, **options)
+    study = run_study(dataset, tmp_path / "study", quick=True, log=lambda message: None, runtime_frames=4, **options)
     refinement = study["sections"]["refinement"]
     assert [row["case"] for row in refinement["rows"] if row["clip"].startswith("tiny_fingers")] == list(CASES)
     for row in refinement["rows"]:
@@ -140,6 +149,8 @@ def test_study_on_two_tiny_clips_fills_every_cell(tmp_path):
     assert [row["preset"] for row in runtime["table"]] == ["fast", "balanced", "full"]
     assert all(row["final_l1"] is not None and row["final_joint_mm"] is not None for row in runtime["table"])
     assert runtime["table"][-1]["seconds_to_both"] is not None      # the reference reaches its own level
+    assert runtime["frames"] == 4
+    assert all(len(read_report(folder)["frames"]) == 4 for folder in runtime["fits"].values())
     stability = study["sections"]["stability"]
     assert stability["all_finite"] and {row["kind"] for row in stability["rows"]} == {"weights", "rates", "poses",
                                                                                        "masks"}

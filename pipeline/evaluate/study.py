@@ -10,9 +10,10 @@ run time of the presets, over a folder of synthetic clips as synth/dataset.py wr
    with shape, displacements, textures and light of the same identity's `flip` HARP-full fit,
    frozen: only per-frame poses and translations move, all terms on). Errors on the fitted
    frames: Procrustes-aligned joint and vertex errors (mm) and the same unaligned.
-2. Error against run time: the presets on one clip (the first `flip` clip), their anytime
-   curves, and the fit time each needs to come within 5% of the `full` preset's final L1 and
-   joint error.
+2. Error against run time: the presets on one clip (the first `flip` clip; every preset fits
+   the same RUNTIME_FRAMES frames of it, spread evenly, so that `full` fits in a session on a
+   CPU), their anytime curves, and the fit time each needs to come within 5% of the `full`
+   preset's final L1 and joint error.
 3. The stability sweep (stability.py).
 
 Every fit goes through pipeline.fit.fit (what `harp fit` runs) with the curve recorder of
@@ -42,6 +43,7 @@ from .study_runs import finished_or_fitted, initialised, read_json, sequence_fra
 CASES = ("init gt-noise", "init MediaPipe", "HARP-sil", "HARP-full", "HARP-known")
 FIGURES = ("joint_mm", "vertex_mm", "joint_camera_mm", "vertex_camera_mm")
 RUNTIME_PRESETS = ("fast", "balanced", "full")
+RUNTIME_FRAMES = 30     # frames every preset fits in the run-time section (0: each preset's own)
 WITHIN = 0.05           # "within 5% of the full preset's final figure"
 QUICK_STEPS = 30        # --quick: steps per stage at most
 SECTIONS = ("refinement", "runtime", "stability")
@@ -78,7 +80,7 @@ def dataset_clips(dataset, pattern=None):
 
 
 def run_study(dataset, out, clips=None, quick=False, preset="fast", sections=SECTIONS, progress="none", log=print,
-              runtime_presets=RUNTIME_PRESETS, **fit_options):
+              runtime_presets=RUNTIME_PRESETS, runtime_frames=RUNTIME_FRAMES, **fit_options):
     """Run the study's sections into `out`; returns the study dict (also study.json/study.md).
     `fit_options` go to every fit (e.g. max_steps, resolution for small tests); --quick caps
     every stage at QUICK_STEPS steps and runs a small stability sweep."""
@@ -95,7 +97,9 @@ def run_study(dataset, out, clips=None, quick=False, preset="fast", sections=SEC
         study["sections"]["refinement"] = refinement(selected, out, preset, progress, log, fit_options)
     if "runtime" in sections:
         flips = [clip for clip in selected if clip.motion == "flip"] or selected
-        study["sections"]["runtime"] = runtime(flips[0], out, runtime_presets, progress, log, fit_options)
+        frames = {"max_frames": runtime_frames} if runtime_frames else {}
+        study["sections"]["runtime"] = runtime(flips[0], out, runtime_presets, progress, log,
+                                               {**frames, **fit_options})
     if "stability" in sections:
         study["sections"]["stability"] = run_stability_sweep(out / "stability", quick=quick, log=log)
     study["seconds"] = time.time() - started
@@ -211,7 +215,8 @@ def runtime(clip, out, presets, progress, log, fit_options):
         table.append({"preset": preset, "fit_seconds": last["fit_seconds"], "final_l1": last.get("l1_mean"),
                       "final_joint_mm": last.get("joint_mm"), "seconds_to_l1": reached.get("l1_mean"),
                       "seconds_to_joint": reached.get("joint_mm"), "seconds_to_both": both})
-    return {"clip": clip.name, "reference": reference, "within": WITHIN, "targets": targets, "table": table,
+    return {"clip": clip.name, "frames": fit_options.get("max_frames"), "reference": reference, "within": WITHIN,
+            "targets": targets, "table": table,
             "fits": {preset: str(folder) for preset, folder in folders.items()}}
 
 

@@ -80,7 +80,7 @@ def _refinement_tables(section):
 def _runtime_table(section):
     targets = section["targets"]
     lines = ["## 2. Error against run time", "",
-             f"Clip `{section['clip']}`. Targets: within {section['within']:.0%} of the `{section['reference']}` "
+             f"Clip `{section['clip']}`{_frames(section.get('frames'))}. Targets: within {section['within']:.0%} of the `{section['reference']}` "
              f"preset's final figures: L1 {_number(targets.get('l1_mean'), 4)}, joint error "
              f"{_number(targets.get('joint_mm'))} mm. Seconds of fitting (measuring excluded).", "",
              "| preset | fit s | final L1 | final joint PA mm | s to L1 target | s to joint target | s to both |",
@@ -90,6 +90,10 @@ def _runtime_table(section):
                      f"{_number(row['final_joint_mm'])} | {_reached(row['seconds_to_l1'])} | "
                      f"{_reached(row['seconds_to_joint'])} | {_reached(row['seconds_to_both'])} |")
     return lines + [""]
+
+
+def _frames(count):
+    return f", {count} frames of it (spread evenly) for every preset" if count else ""
 
 
 def _reached(seconds):

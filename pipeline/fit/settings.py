@@ -84,12 +84,16 @@ PRESETS = {
 
 
 def settings_for(preset, frame_count, **overrides):
-    """FitSettings of a preset; the full preset turns epochs into steps for this clip."""
+    """FitSettings of a preset; the full preset turns epochs into steps over the frames it fits
+    (the clip's `frame_count`, at most max_frames)."""
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
     values = dict(PRESETS[preset])
+    values.update({k: v for k, v in overrides.items() if v is not None and k != "steps"})
     if preset == "full":
-        per_epoch = max(1, -(-frame_count // values["batch_size"]))
+        fitted = min(frame_count, values.get("max_frames", FitSettings.max_frames))
+        per_epoch = max(1, -(-fitted // values["batch_size"]))
         values["steps"] = (100 * per_epoch, 50 * per_epoch, 50 * per_epoch)
-    values.update({k: v for k, v in overrides.items() if v is not None})
+    if overrides.get("steps") is not None:
+        values["steps"] = overrides["steps"]
     return FitSettings(preset=preset, **values)
