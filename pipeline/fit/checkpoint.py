@@ -51,6 +51,7 @@ class FitState:
     order: list = dataclasses.field(default_factory=list)     # frames of the current epoch not yet drawn
     measure_seconds: float = 0.0        # time observers (the anytime curve) took, not fit time
     texture_fill: dict | None = None    # texture_fill.fill_avatar_albedo's figures, once it has run
+    albedo_solve: dict | None = None    # albedo_solve.solve_avatar_albedo's figures, once it has run
 
     @classmethod
     def fresh(cls, stage_count, shadows="auto"):

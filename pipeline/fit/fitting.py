@@ -18,6 +18,7 @@ import torch
 
 from ..formats.initial_estimate import read_initial_estimate
 from ..formats.sequence_folder import validate_sequence_folder
+from .albedo_solve import solve_avatar_albedo
 from .avatar import APPEARANCE, SHAPE
 from .checkpoint import CHECKPOINT_FILE, CHECKPOINT_VERSION, Checkpoint, FitState, load_checkpoint, save_checkpoint
 from .frames import held_out_frames, select_frames
@@ -86,6 +87,12 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
                 saver.save_now_and_then(state, run, generator)
             clock.charge()
             state.stage, state.step, state.order = index + 1, 0, []
+            saver.save(state, None, generator)
+        if state.albedo_solve is None and problem.settings.solve_albedo and not problem.known_appearance:
+            state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on)
+            reporter.log(f"albedo solved from the frames on the final geometry and light: "
+                         f"{state.albedo_solve['solved_fraction']:.0%} of the texels "
+                         f"(mean change {state.albedo_solve['mean_change']:.3f})")
             saver.save(state, None, generator)
         if state.texture_fill is None and not problem.known_appearance:
             state.texture_fill = fill_avatar_albedo(problem.avatar, problem.clip)

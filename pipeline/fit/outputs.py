@@ -100,6 +100,7 @@ def write_outputs(out, problem, state, held_out=()):
         "perceptual_term": problem.perceptual_name, "ambient": avatar.ambient.item(),
         "light_position": avatar.light_position.detach().cpu().tolist(),
         "appearance": "known (frozen)" if problem.known_appearance else "fitted", "texture_fill": state.texture_fill,
+        "albedo_solve": state.albedo_solve,
         "exposure": {"decision": problem.exposure_note,
                      "gain": torch.exp(avatar.exposure.detach()).cpu().tolist() if problem.exposure_on else None},
         "mask_cut_frames": problem.mask_cut_frames,

@@ -9,7 +9,7 @@ WEIGHTS = {  # appendix Table C.1
     "photometric": 1.0, "perceptual": 1.0, "texture": 2.0, "normal_map": 0.5,
     # ours, not in the table: hands move smoothly at video rates (losses.temporal_*)
     "temporal_pose": 10.0, "temporal_global": 1.0,
-    "displacement_smoothness": 0.0,   # the displacement field's own roughness (losses.py)
+    "displacement_smoothness": 1.0,   # the displacement field's own roughness (losses.py): smooth reposed fingers
     "exposure": 1.0,                  # per-frame exposure gains: smooth over time, average 1 (when on)
 }
 
@@ -42,6 +42,7 @@ class FitSettings:
     lr_betas: float = 1e-2          # shape units per step
     lr_displacement: float = 1e-4   # metres per step
     lr_appearance: float = 1e-2
+    solve_albedo: bool = False      # the final albedo solved from the frames (albedo_solve.py; soft light only)
     shadows: str = "auto"          # auto | on | off
     exposure: str = "auto"         # per-frame exposure gains: auto | on | off (problem.py decides auto)
     max_frames: int = 60           # longer clips are subsampled, keeping view coverage

@@ -20,7 +20,7 @@ from .shading import perturbed_normal, shade, uv_tangents, vertex_normals
 from .shadow_map import shadow_visibility
 from .texture import sample_texture
 
-OUTPUTS = ("alpha", "rgb", "depth", "normal", "albedo")
+OUTPUTS = ("alpha", "rgb", "depth", "normal", "albedo", "uv")
 
 
 @dataclasses.dataclass
@@ -67,7 +67,8 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
     points (B, V, 3) vertices in the camera frame (OpenCV axes, metres); K (3, 3) or (B, 3, 3).
     Returns {name: (B, H, W, C)}: alpha (C=1), rgb (3, lit colour over `background`, a (3,)
     tensor or (B, H, W, 3) image, default black), depth (1, +inf where empty), normal (3,
-    camera frame), albedo (3, unlit). alpha and rgb carry silhouette gradients when antialiased.
+    camera frame), albedo (3, unlit), uv (2, the texture coordinates seen, v up). alpha and rgb
+    carry silhouette gradients when antialiased.
     """
     unknown = set(outputs) - set(OUTPUTS)
     if unknown:
@@ -83,11 +84,15 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
         smooth_normals = interpolate(vertex_normals(points, faces), frags, faces)
     if "normal" in outputs:
         result["normal"] = to_image(torch.nn.functional.normalize(smooth_normals, dim=-1), frags)
-    needs_colour = {"rgb", "albedo"} & set(outputs)
-    if needs_colour:
-        if appearance is None or mesh.uvs is None:
-            raise ValueError("rgb/albedo outputs need an appearance and a mesh with UVs")
+    if {"rgb", "albedo", "uv"} & set(outputs):
+        if mesh.uvs is None:
+            raise ValueError("rgb/albedo/uv outputs need a mesh with UVs")
         uv = interpolate(mesh.uvs, frags, mesh.faces_uv)
+        if "uv" in outputs:
+            result["uv"] = to_image(uv, frags)
+    if {"rgb", "albedo"} & set(outputs):
+        if appearance is None:
+            raise ValueError("rgb/albedo outputs need an appearance")
         albedo = sample_texture(appearance.albedo, uv)
         if "albedo" in outputs:
             result["albedo"] = to_image(albedo, frags)

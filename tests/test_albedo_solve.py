@@ -1,0 +1,95 @@
+"""The albedo solved from the frames (pipeline/fit/albedo_solve.py): frames rendered from the
+avatar itself with a known, sharp albedo give that albedo back where they show it, sharp, and
+through the exposure gains; texels no frame shows keep their value."""
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from pipeline.evaluate.exact_clips import mottled_albedo, write_clip
+from pipeline.fit.problem import build_problem
+from pipeline.fit.settings import settings_for
+from pipeline.fit.albedo_solve import solve_avatar_albedo, solved_albedo
+from pipeline.init import initialise_sequence
+from pipeline.render.renderer import render
+from synth.motions import OPEN
+
+SIZE, TEXTURE, FRAMES = 160, 128, 4
+
+
+def sharp_albedo(size=TEXTURE):
+    """Mottled skin with dark rings and stripes (a tattoo's hard edges) all over the atlas."""
+    albedo = mottled_albedo(size)
+    v, u = np.mgrid[0:size, 0:size] / size
+    ink = (np.abs(np.sin(2 * np.pi * 4 * np.hypot(u - 0.5, v - 0.5))) > 0.8) | (np.sin(2 * np.pi * 5 * u) > 0.85)
+    return np.where(ink[None], albedo * 0.35, albedo)
+
+
+def gradient_energy(texture, where):
+    dy = np.diff(texture, axis=1)[:, :, :-1]
+    dx = np.diff(texture, axis=2)[:, :-1, :]
+    inner = where[:-1, :-1] & where[1:, :-1] & where[:-1, 1:]
+    return float(((dx ** 2 + dy ** 2).sum(0))[inner].mean())
+
+
+@pytest.fixture(scope="module")
+def problem(tmp_path_factory):
+    """A problem whose frames are the avatar's own renders (its pose and light, the sharp albedo)."""
+    folder = tmp_path_factory.mktemp("albedo_solve") / "clip"
+    write_clip(folder, OPEN, frames=FRAMES, size=SIZE, turn_degrees=25)
+    initialise_sequence(folder, "gt-noise", noise_degrees=0.0, noise_translation_m=0.0, log=lambda *a: None)
+    problem = build_problem(folder, settings_for("fast", FRAMES, resolution=SIZE, texture_size=TEXTURE),
+                            np.arange(FRAMES), "cpu")
+    avatar = problem.avatar
+    truth = torch.as_tensor(sharp_albedo(), dtype=avatar.albedo.dtype)
+    with torch.no_grad():
+        vertices, _ = avatar.posed(torch.arange(FRAMES))
+        images = render(vertices, avatar.mesh, problem.clip.K, SIZE, SIZE, outputs=("rgb", "alpha"),
+                        appearance=dataclasses.replace(avatar.appearance(), albedo=truth),
+                        light=avatar.light(False))
+    problem.clip.images = images["rgb"]
+    problem.clip.masks = (images["alpha"] > 0.5).to(images["alpha"].dtype)
+    return problem, truth.numpy()
+
+
+def test_solved_albedo_is_the_albedo_the_frames_were_rendered_with(problem):
+    problem, truth = problem
+    albedo, read = solved_albedo(problem, shadows=False)
+    albedo, read = albedo.numpy(), read.numpy() & (problem.uv_mask.numpy() > 0)
+    start = problem.avatar.albedo.detach().clamp(0, 1).numpy()
+    assert read.sum() > 0.2 * problem.uv_mask.sum().item()            # the frames show a good part of the hand
+    error = np.abs(albedo - truth).mean(0)[read].mean()
+    assert error < 0.1 * np.abs(start - truth).mean(0)[read].mean() and error < 0.02
+    assert gradient_energy(albedo, read) > 0.8 * gradient_energy(truth, read)   # the rings stay sharp
+
+
+def test_the_solve_divides_the_exposure_gains_out(problem):
+    problem, _ = problem
+    reference, read = solved_albedo(problem, shadows=False)
+    gains = torch.tensor([[0.2, 0.0, -0.1], [-0.2, 0.1, 0.0], [0.0, 0.0, 0.0], [0.1, -0.1, 0.2]])
+    brighter = dataclasses.replace(problem.clip, images=problem.clip.images * torch.exp(gains)[:, None, None, :])
+    exposed = dataclasses.replace(problem, clip=brighter, settings=dataclasses.replace(problem.settings, exposure="on"))
+    saved = problem.avatar.exposure.detach().clone()
+    try:
+        with torch.no_grad():
+            problem.avatar.exposure.copy_(gains)
+        albedo, _ = solved_albedo(exposed, shadows=False)
+    finally:
+        with torch.no_grad():
+            problem.avatar.exposure.copy_(saved)
+    unclipped = read & (reference.max(0).values < 0.8)       # gains above 1 clip nothing there
+    assert (albedo - reference).abs().mean(0)[unclipped].mean() < 0.01
+
+
+def test_the_solve_changes_only_the_texels_the_frames_show(problem):
+    problem, truth = problem
+    before = problem.avatar.albedo.detach().clone()
+    _, read = solved_albedo(problem, shadows=False)
+    figures = solve_avatar_albedo(problem, shadows=False)
+    after = problem.avatar.albedo.detach()
+    unread = ~(read & (problem.uv_mask > 0))
+    assert torch.equal(after[:, unread], before[:, unread])
+    assert 0.2 < figures["solved_fraction"] < 1 and figures["mean_change"] > 0.02
+    with torch.no_grad():
+        problem.avatar.albedo.copy_(before)
