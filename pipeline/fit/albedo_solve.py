@@ -16,6 +16,10 @@ gathered as a 3 x 3 stencil per texel and solved by conjugate gradients, with a 
 (SMOOTHNESS) between neighbouring texels and a weaker one (ANCHOR) towards the current albedo
 for the texels the frames barely decide. Texels with less than MIN_COVERAGE of bilinear weight
 from the frames keep the value the fit gave them.
+
+Off by default (`harp fit --solve-albedo`, FitSettings.solve_albedo): under a hard sun the solve
+also fits, texel by texel, what the renderer does not model (soft shadow edges, real skin), and
+blotches appear (docs/fidelity.md).
 """
 from __future__ import annotations
 
