@@ -93,3 +93,17 @@ def test_the_solve_changes_only_the_texels_the_frames_show(problem):
     assert 0.2 < figures["solved_fraction"] < 1 and figures["mean_change"] > 0.02
     with torch.no_grad():
         problem.avatar.albedo.copy_(before)
+
+
+def test_bilinear_texels_are_the_renderers_own_lookup():
+    """The four texels and weights the solve writes its equations with reproduce sample_texture
+    (grid_sample) at random UVs, borders and corners included."""
+    from pipeline.render.texture import bilinear_texels, sample_texture
+
+    generator = torch.Generator().manual_seed(0)
+    texture = torch.rand(3, 17, 17, generator=generator, dtype=torch.float64)
+    uv = torch.cat([torch.rand(500, 2, generator=generator, dtype=torch.float64),
+                    torch.tensor([[0.0, 0.0], [1.0, 1.0], [0.01, 0.99], [0.5, 0.0]], dtype=torch.float64)])
+    rows, columns, weights = bilinear_texels(uv, 17)
+    explicit = (texture[:, rows, columns] * weights).sum(-1).t()
+    torch.testing.assert_close(explicit, sample_texture(texture, uv), atol=1e-12, rtol=0)

@@ -28,6 +28,7 @@ import dataclasses
 import torch
 
 from ..render.renderer import render
+from ..render.texture import bilinear_texels
 from .losses import eroded_mask
 
 MIN_COVERAGE = 1.0      # bilinear weight (about one pixel's worth) a texel needs to be solved
@@ -106,21 +107,6 @@ class _NormalEquations:
         diagonal = matrix[..., STENCIL.index((0, 0))] + anchor + 4 * smoothness
         albedo = _conjugate_gradients(apply, rhs, start.clone(), 1 / diagonal, CG_ITERATIONS)
         return albedo.clamp(0, 1), solved
-
-
-def bilinear_texels(uv, size):
-    """The four texels (rows, columns (N, 4)) and weights (N, 4) the renderer's bilinear lookup
-    (render/texture.py: grid_sample, align_corners False, border padding) reads at each UV."""
-    x = (uv[:, 0] * size - 0.5).clamp(0, size - 1)
-    y = ((1 - uv[:, 1]) * size - 0.5).clamp(0, size - 1)
-    x0, y0 = x.floor(), y.floor()
-    fx, fy = x - x0, y - y0
-    x0, y0 = x0.long(), y0.long()
-    x1, y1 = (x0 + 1).clamp(max=size - 1), (y0 + 1).clamp(max=size - 1)
-    rows = torch.stack([y0, y0, y1, y1], dim=1)
-    columns = torch.stack([x0, x1, x0, x1], dim=1)
-    weights = torch.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], dim=1)
-    return rows, columns, weights
 
 
 def _grid_laplacian(images):

@@ -15,3 +15,18 @@ def sample_texture(texture, uv):
     sampled = F.grid_sample(texture.unsqueeze(0), grid.to(texture.dtype), mode="bilinear",
                             padding_mode="border", align_corners=False)
     return sampled[0, :, 0].transpose(0, 1)
+
+
+def bilinear_texels(uv, size):
+    """The four texels (rows, columns (N, 4)) and weights (N, 4) that sample_texture's bilinear
+    lookup (grid_sample, align_corners False, border padding) reads at each UV (N, 2)."""
+    x = (uv[:, 0] * size - 0.5).clamp(0, size - 1)
+    y = ((1 - uv[:, 1]) * size - 0.5).clamp(0, size - 1)
+    x0, y0 = x.floor(), y.floor()
+    fx, fy = x - x0, y - y0
+    x0, y0 = x0.long(), y0.long()
+    x1, y1 = (x0 + 1).clamp(max=size - 1), (y0 + 1).clamp(max=size - 1)
+    rows = torch.stack([y0, y0, y1, y1], dim=1)
+    columns = torch.stack([x0, x1, x0, x1], dim=1)
+    weights = torch.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], dim=1)
+    return rows, columns, weights
