@@ -37,7 +37,7 @@ def _fit(args):
     report = fit(args.sequence, args.out, preset=args.preset, resume=args.resume, progress=args.progress,
                  device=args.device, shadows=args.shadows, hold_out_every=args.hold_out_every,
                  known_appearance=args.known_appearance, observers=observers, max_steps=args.max_steps,
-                 exposure=args.exposure, solve_albedo=args.solve_albedo or None)
+                 exposure=args.exposure, solve_albedo=args.solve_albedo)
     print(f"wrote {args.out} in {report['total_seconds']:.0f} s: {metrics_line(report['metrics'])}")
 
 
@@ -135,9 +135,9 @@ def build_parser():
     fit.add_argument("--preset", choices=("fast", "balanced", "full"), default="fast", help=PRESET_HELP)
     fit.add_argument("--shadows", choices=("auto", "on", "off"), default="auto",
                      help="self-shadowing: auto (default) decides from the fitted light, on under a dominant light")
-    fit.add_argument("--solve-albedo", action="store_true",
-                     help="solve the final albedo from the frames (sharp detail such as tattoos; soft light only: "
-                          "under a hard sun it bakes shading errors in, docs/fidelity.md)")
+    fit.add_argument("--solve-albedo", action=argparse.BooleanOptionalAction, default=None,
+                     help="solve the final albedo from the frames once geometry and light are final (default: on; "
+                          "sharp detail such as tattoos, docs/fidelity.md)")
     fit.add_argument("--exposure", choices=("auto", "on", "off"), default="auto",
                      help="per-frame exposure and white-balance gains: auto (default) switches them on when the "
                           "footage's background brightness changes over the clip (a phone's automatic exposure)")

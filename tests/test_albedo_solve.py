@@ -95,6 +95,33 @@ def test_the_solve_changes_only_the_texels_the_frames_show(problem):
         problem.avatar.albedo.copy_(before)
 
 
+def test_a_shadow_one_frame_shows_and_the_renderer_does_not_is_not_baked_in(problem):
+    """A dark patch (a shadow edge, say) in one of the four frames, where the others show the
+    texels clean: the second, consistency-weighted solve leaves it out; one unweighted solve
+    (the first) takes a quarter of it into the albedo."""
+    import pipeline.fit.albedo_solve as solve
+
+    problem, truth = problem
+    images = problem.clip.images.clone()
+    rows, columns = torch.nonzero(problem.clip.masks[1, ..., 0] > 0.5, as_tuple=True)
+    top, left = int(rows.float().median()), int(columns.float().median())
+    images[1, top - 12:top + 12, left - 12:left + 12] *= 0.4
+    shadowed = dataclasses.replace(problem, clip=dataclasses.replace(problem.clip, images=images))
+    clean, read = solved_albedo(problem, shadows=False)
+    robust, _ = solved_albedo(shadowed, shadows=False)
+    saved = solve.PRIOR_COUNT, solve.OUTLIER_SCALE
+    try:
+        solve.PRIOR_COUNT, solve.OUTLIER_SCALE = 1e12, 1e12        # every pixel alike
+        plain, _ = solved_albedo(shadowed, shadows=False)
+    finally:
+        solve.PRIOR_COUNT, solve.OUTLIER_SCALE = saved
+    touched = read & ((plain - clean).abs().max(0).values > 0.05)  # the texels the patch reaches
+    assert touched.sum() > 20
+    plain_error = (plain - clean).abs().mean(0)[touched].mean()
+    robust_error = (robust - clean).abs().mean(0)[touched].mean()
+    assert robust_error < 0.35 * plain_error, (float(robust_error), float(plain_error))
+
+
 def test_bilinear_texels_are_the_renderers_own_lookup():
     """The four texels and weights the solve writes its equations with reproduce sample_texture
     (grid_sample) at random UVs, borders and corners included."""

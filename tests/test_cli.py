@@ -10,6 +10,7 @@ import pytest
 
 from pipeline.cli import build_parser, main
 from pipeline.demo import run_demo
+from pipeline.fit.settings import settings_for
 from pipeline.formats import hand_model_file as fmt
 from pipeline.handmodel.measurements import joint_limits_markdown
 
@@ -42,6 +43,14 @@ def test_demo_renders_initialises_fits_and_evaluates(tmp_path):
 def test_demo_is_the_default_job():
     args = build_parser().parse_args(["demo"])
     assert args.run.__name__ == "_demo" and args.out == "harp_demo"
+
+
+def test_the_albedo_solve_is_on_unless_switched_off():
+    parser = build_parser()
+    assert parser.parse_args(["fit", "seq", "--out", "a"]).solve_albedo is None      # the settings' default: on
+    assert parser.parse_args(["fit", "seq", "--out", "a", "--no-solve-albedo"]).solve_albedo is False
+    assert settings_for("fast", 10).solve_albedo
+    assert not settings_for("fast", 10, solve_albedo=False).solve_albedo
 
 
 def test_preview_of_the_left_hand(tmp_path):

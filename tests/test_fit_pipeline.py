@@ -33,6 +33,7 @@ def test_fit_writes_a_complete_avatar(tiny_clip, tmp_path):
     assert poses.pose.shape == (4, 16, 3) and np.all(poses.pose[:, 0] == 0)  # hand mode: no wrist joint
     for name in (av.ALBEDO_FILE, av.NORMAL_FILE, "fit_grid.png", "overlay.mp4", "report.json"):
         assert (out / name).is_file(), name
+    assert report["albedo_solve"]["solved_fraction"] > 0.1       # the albedo solve runs by default
     scores = report["metrics"]
     assert all(np.isfinite(scores["psnr"])) and 0 < scores["silhouette_iou_min"] <= 1
     assert json.loads((out / "report.json").read_text())["stage_seconds"]["geometry"] > 0

@@ -13,13 +13,15 @@ for an albedo of 1 (light, ambient ratio, shadows, normal map, exposure gain), b
 renderer's own texture lookup (render/texture.py) at the pixel's UV: four texels and their
 weights. The normal equations couple each texel with its eight neighbours only, so they are
 gathered as a 3 x 3 stencil per texel and solved by conjugate gradients, with a weak pull
-(SMOOTHNESS) between neighbouring texels and a weaker one (ANCHOR) towards the current albedo
-for the texels the frames barely decide. Texels with less than MIN_COVERAGE of bilinear weight
+(SMOOTHNESS) between neighbouring texels. Texels with less than MIN_COVERAGE of bilinear weight
 from the frames keep the value the fit gave them.
 
-Off by default (`harp fit --solve-albedo`, FitSettings.solve_albedo): under a hard sun the solve
-also fits, texel by texel, what the renderer does not model (soft shadow edges, real skin), and
-blotches appear (docs/fidelity.md).
+The frames also show what the renderer does not model (under a hard sun: shadow edges in other
+places, real skin's highlights). Solved pixel by pixel alike, that is baked into the albedo as
+blotches (sharpness 3.6 times the truth's on a sun clip). So the solve is reweighted
+(solved_albedo): outlier pixels, texels the frames disagree on and texels few pixels show lean
+on the appearance stage's albedo, clean and well-seen texels follow the frames.
+docs/fidelity.md has the figures.
 """
 from __future__ import annotations
 
@@ -35,23 +37,65 @@ MIN_COVERAGE = 1.0      # bilinear weight (about one pixel's worth) a texel need
 MIN_SHADING = 0.05      # pixels darker than this (shading of an albedo of 1) carry no colour
 MASK_EROSION = 2        # pixels, as the photometric term's
 SMOOTHNESS = 1e-2       # neighbour pull, against the mean data weight of a solved texel
-ANCHOR = 1e-4           # pull towards the current albedo, likewise
+ANCHOR = 1e-4           # the first solve's pull towards the current albedo, likewise
+WELL_SEEN = 8.0         # coverage of the texels that measure how far off the current albedo is
+PRIOR_COUNT = 4.0       # a texel's noise variance: the clip's, worth this many pixels, and its own
+OUTLIER_SCALE = 3.0     # residuals beyond this many of their texels' standard deviations lose weight
+REWEIGHTINGS = 3        # weighted solves after the first
+NOISE_FLOOR = 0.02      # the least noise (standard deviation) a pixel's colour is taken to have
 CG_ITERATIONS = 300
 # the 3 x 3 stencil: offsets (row, column) to the neighbours a texel's equations couple it with
 STENCIL = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
 
 
+@dataclasses.dataclass
+class _Observations:
+    """Every usable pixel of the fitted frames: its four texels (flat indices (N, 4)) and
+    bilinear weights (N, 4), its shading (N, 3) and colour (N, 3)."""
+    texels: torch.Tensor
+    weights: torch.Tensor
+    shading: torch.Tensor
+    colour: torch.Tensor
+
+    def predicted(self, albedo):
+        """(N, 3) the colour each pixel shows for a (3, T, T) albedo."""
+        flat = albedo.flatten(1)
+        return self.shading * (flat[:, self.texels] * self.weights).sum(-1).t()
+
+
 @torch.no_grad()
 def solved_albedo(problem, shadows, batch_size=4):
     """((3, T, T) albedo in [0, 1] that explains the problem's frames best with its avatar's
-    current geometry, light and exposure gains, (T, T) bool: texels the frames decide)."""
-    avatar, clip = problem.avatar, problem.clip
-    current = avatar.albedo.detach().clamp(0, 1)
+    current geometry, light and exposure gains, (T, T) bool: texels the frames decide).
+
+    Two weighted least-squares solves, with the current albedo as the prior: the first with
+    every pixel alike and a weak pull (ANCHOR). From its residuals, each texel's noise variance
+    (pooled with the clip's, PRIOR_COUNT pixels' worth); each pixel is weighted by the inverse
+    variance of its texels and loses weight where it is an outlier for them (Cauchy,
+    OUTLIER_SCALE); the current albedo is weighted by the clip's noise over its own error where
+    the frames decide well (WELL_SEEN); and the albedo is solved again. Texels whose frames
+    disagree (what the renderer does not model: a shadow edge in the wrong place, a highlight)
+    or that few pixels show lean on the current albedo; clean, well-seen texels follow the
+    frames."""
+    current = problem.avatar.albedo.detach().clamp(0, 1)
     size = current.shape[-1]
-    system = _NormalEquations(size, current.dtype, current.device)
-    appearance = dataclasses.replace(avatar.appearance(), albedo=torch.ones_like(current))
+    seen = _observations(problem, shadows, batch_size, size)
+    first = _NormalEquations(size, seen, torch.ones_like(seen.shading[:, 0]))
+    albedo, solved = first.solve(current, ANCHOR * first.data_weight())
+    prior = None
+    for _ in range(REWEIGHTINGS):
+        weights, clip_variance = _consistency_weights(seen, albedo, size)
+        prior = _prior_weight(first, albedo, current, clip_variance) if prior is None else prior
+        albedo, solved = _NormalEquations(size, seen, weights).solve(current, prior)
+    return albedo, solved
+
+
+def _observations(problem, shadows, batch_size, size):
+    avatar, clip = problem.avatar, problem.clip
+    appearance = dataclasses.replace(avatar.appearance(), albedo=torch.ones_like(avatar.albedo))
     light = avatar.light(shadows)
-    for batch in torch.arange(len(problem.frames), device=current.device).split(batch_size):
+    parts = []
+    for batch in torch.arange(len(problem.frames), device=avatar.albedo.device).split(batch_size):
         vertices, _ = avatar.posed(batch)
         images = render(vertices, avatar.mesh, clip.K, clip.height, clip.width, outputs=("rgb", "uv", "alpha"),
                         appearance=appearance, light=light, antialiased=False)
@@ -60,41 +104,89 @@ def solved_albedo(problem, shadows, batch_size=4):
         if clip.valid is not None:
             usable = usable & (clip.valid[..., 0] > 0.5)
         usable = usable & (shading.min(-1).values > MIN_SHADING)
-        system.add(images["uv"][usable], shading[usable], clip.images[batch][usable])
-    return system.solve(current)
+        parts.append((images["uv"][usable], shading[usable], clip.images[batch][usable]))
+    uv, shading, colour = (torch.cat(column) for column in zip(*parts))
+    rows, columns, weights = bilinear_texels(uv, size)
+    return _Observations(rows * size + columns, weights, shading, colour)
+
+
+def _consistency_weights(seen, albedo, size):
+    """((N,) each pixel's weight for the second solve; the clip's noise variance, the median
+    squared residual, at least NOISE_FLOOR squared). A pixel's weight: a Cauchy weight of its
+    residual against the clip's noise (an outlier: a shadow or highlight in one frame), times the
+    clip's noise variance over its texels' (bilinear mix), each texel's from the residuals of
+    its pixels weighted so (the frames disagree on it, beyond single outliers)."""
+    squared = (seen.colour - seen.predicted(albedo)).pow(2).mean(1)
+    clip_variance = squared.median().clamp(min=NOISE_FLOOR ** 2)
+    inlier = 1 / (1 + squared / (OUTLIER_SCALE ** 2 * clip_variance))
+    spread = torch.zeros(size * size, dtype=squared.dtype, device=squared.device)
+    count = torch.zeros_like(spread)
+    spread.index_add_(0, seen.texels.flatten(), (seen.weights * (inlier * squared)[:, None]).flatten())
+    count.index_add_(0, seen.texels.flatten(), (seen.weights * inlier[:, None]).flatten())
+    # a texel's own residuals underestimate its variance by about one pixel's worth: its value
+    # was fitted to them
+    texel_variance = (spread + PRIOR_COUNT * clip_variance) / ((count - 1).clamp(min=0) + PRIOR_COUNT)
+    pixel_variance = (texel_variance[seen.texels] * seen.weights).sum(1)
+    return inlier * clip_variance / pixel_variance, clip_variance
+
+
+def _prior_weight(first, solved, current, clip_variance):
+    """The second solve's pull towards the current albedo: what a typical pixel adds to a
+    texel's diagonal, times the clip's noise variance in albedo units over the current albedo's
+    mean squared difference from the first solve on the texels the frames decide well."""
+    coverage = first.coverage.view(current.shape[1:])
+    well_seen = coverage >= WELL_SEEN
+    if not well_seen.any():
+        well_seen = coverage >= MIN_COVERAGE
+    if not well_seen.any():
+        return 0.0
+    shading_squared = (first.seen.shading ** 2).mean(1)
+    typical_pixel = (shading_squared * (first.seen.weights ** 2).sum(1)).mean()
+    albedo_noise = clip_variance / shading_squared.mean()
+    prior_error = (solved - current).pow(2).mean(0)[well_seen].mean().clamp(min=1e-8)
+    return float(typical_pixel * albedo_noise / prior_error)
 
 
 class _NormalEquations:
-    """sum over pixels of (S * sum_i w_i a_(k_i) - I)^2, per channel, as a 9-point stencil per
-    texel (matrix) and a right-hand side, plus each texel's bilinear weight (coverage)."""
+    """sum over pixels of weight * (S * sum_i w_i a_(k_i) - I)^2, per channel, as a 9-point
+    stencil per texel (matrix) and a right-hand side, plus each texel's bilinear weight
+    (coverage)."""
 
-    def __init__(self, size, dtype, device):
-        self.size = size
+    def __init__(self, size, seen, pixel_weight):
+        self.size, self.seen = size, seen
+        dtype, device = seen.shading.dtype, seen.shading.device
         self.matrix = torch.zeros(3, size * size * len(STENCIL), dtype=dtype, device=device)
         self.rhs = torch.zeros(3, size * size, dtype=dtype, device=device)
         self.coverage = torch.zeros(size * size, dtype=dtype, device=device)
-
-    def add(self, uv, shading, colour):
-        """Pixels' UVs (N, 2), shading (N, 3) and colours (N, 3)."""
-        rows, columns, weights = bilinear_texels(uv, self.size)
+        rows, columns = seen.texels // size, seen.texels % size
+        weighted = seen.shading * pixel_weight[:, None]
         for i in range(4):
-            texel = rows[:, i] * self.size + columns[:, i]
-            self.rhs.index_add_(1, texel, (shading * colour * weights[:, i, None]).t())
-            self.coverage.index_add_(0, texel, weights[:, i])
+            texel = seen.texels[:, i]
+            self.rhs.index_add_(1, texel, (weighted * seen.colour * seen.weights[:, i, None]).t())
+            self.coverage.index_add_(0, texel, seen.weights[:, i])
             for j in range(4):
                 place = (rows[:, j] - rows[:, i] + 1) * 3 + (columns[:, j] - columns[:, i] + 1)
-                self.matrix.index_add_(1, texel * len(STENCIL) + place,
-                                       (shading * shading * (weights[:, i] * weights[:, j])[:, None]).t())
+                pair = (seen.weights[:, i] * seen.weights[:, j])[:, None]
+                self.matrix.index_add_(1, texel * len(STENCIL) + place, (weighted * seen.shading * pair).t())
 
-    def solve(self, start):
-        """(albedo (3, T, T), solved (T, T) bool): conjugate gradients from `start`."""
+    def diagonal(self):
+        """(3, T, T) each texel's own coefficient."""
+        return self.matrix.view(3, self.size, self.size, len(STENCIL))[..., STENCIL.index((0, 0))]
+
+    def data_weight(self):
+        """The mean diagonal over the texels the frames decide."""
+        solved = self.coverage.view(self.size, self.size) >= MIN_COVERAGE
+        return float(self.diagonal().mean(0)[solved].mean()) if solved.any() else 0.0
+
+    def solve(self, start, anchor):
+        """(albedo (3, T, T), solved (T, T) bool): conjugate gradients from `start`, with a pull
+        `anchor` towards it and SMOOTHNESS times the data weight between neighbours."""
         size = self.size
         matrix = self.matrix.view(3, size, size, len(STENCIL))
         solved = self.coverage.view(size, size) >= MIN_COVERAGE
         if not solved.any():
             return start.clone(), solved
-        data_weight = matrix[..., STENCIL.index((0, 0))].mean(0)[solved].mean()
-        smoothness, anchor = SMOOTHNESS * data_weight, ANCHOR * data_weight
+        smoothness = SMOOTHNESS * self.data_weight()
 
         def apply(albedo):
             padded = torch.nn.functional.pad(albedo, (1, 1, 1, 1))
@@ -104,7 +196,7 @@ class _NormalEquations:
             return result + smoothness * _grid_laplacian(albedo)
 
         rhs = self.rhs.view(3, size, size) + anchor * start
-        diagonal = matrix[..., STENCIL.index((0, 0))] + anchor + 4 * smoothness
+        diagonal = self.diagonal() + anchor + 4 * smoothness
         albedo = _conjugate_gradients(apply, rhs, start.clone(), 1 / diagonal, CG_ITERATIONS)
         return albedo.clamp(0, 1), solved
 

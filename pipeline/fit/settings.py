@@ -42,7 +42,7 @@ class FitSettings:
     lr_betas: float = 1e-2          # shape units per step
     lr_displacement: float = 1e-4   # metres per step
     lr_appearance: float = 1e-2
-    solve_albedo: bool = False      # the final albedo solved from the frames (albedo_solve.py; soft light only)
+    solve_albedo: bool = True       # the final albedo solved from the frames (albedo_solve.py)
     shadows: str = "auto"          # auto | on | off
     exposure: str = "auto"         # per-frame exposure gains: auto | on | off (problem.py decides auto)
     max_frames: int = 60           # longer clips are subsampled, keeping view coverage
