@@ -5,6 +5,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from .threads import configure_threads
+
 
 def _model_build(args):
     from .handmodel.build import build_models
@@ -26,6 +28,7 @@ def _model_info(args):
 
 
 def _fit(args):
+    configure_threads(args.threads)
     from .fit import fit
     from .fit.outputs import metrics_line
 
@@ -61,6 +64,7 @@ def _addon_build(args):
 
 
 def _study(args):
+    configure_threads(args.threads)
     from .evaluate.study import run_study
 
     study = run_study(args.dataset, args.out, clips=args.clips, quick=args.quick, preset=args.preset,
@@ -110,6 +114,7 @@ def _render(args):
 
 def _demo(args):
     """The quick-start job: a synthetic clip, its initialisation, the fast fit and its figures."""
+    configure_threads(args.threads)
     from .demo import run_demo
 
     run_demo(args.out, progress=args.progress)
@@ -118,6 +123,8 @@ def _demo(args):
 PRESET_HELP = ("fast (default): a few minutes on a laptop CPU; balanced: sharper, about three times as long; "
                "full: the paper's schedule at 448 px, best and slowest")
 PROGRESS_HELP = "bar (default): a progress bar; jsonl: JSON lines (for the Blender add-on); none"
+THREADS_HELP = ("CPU threads (default: half the cores, waiting passively: a fit that shares the machine with "
+                "Blender or another fit stays fast)")
 
 
 def build_parser():
@@ -127,6 +134,7 @@ def build_parser():
     demo = commands.add_parser("demo", help="run the built-in example: render a synthetic clip, fit it, evaluate")
     demo.add_argument("--out", default="harp_demo", help="output folder (default: harp_demo)")
     demo.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar", help=PROGRESS_HELP)
+    demo.add_argument("--threads", type=int, metavar="N", help=THREADS_HELP)
     demo.set_defaults(run=_demo)
 
     fit = commands.add_parser("fit", help="fit an avatar to a sequence folder that has an init.npz")
@@ -143,6 +151,7 @@ def build_parser():
                           "footage's background brightness changes over the clip (a phone's automatic exposure)")
     fit.add_argument("--resume", action="store_true", help="continue from the avatar folder's checkpoint")
     fit.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar", help=PROGRESS_HELP)
+    fit.add_argument("--threads", type=int, metavar="N", help=THREADS_HELP)
     fit.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
     fit.add_argument("--hold-out-every", type=int, default=None, metavar="N",
                      help="leave every N-th frame out of the fit, for harp evaluate")
@@ -168,6 +177,7 @@ def build_parser():
     study.add_argument("--clips", default=None, metavar="PATTERNS",
                        help="comma-separated shell patterns of clip names, e.g. 'small-*,medium-light_*'")
     study.add_argument("--quick", action="store_true", help="a small version for CI: stages capped, short sweep")
+    study.add_argument("--threads", type=int, metavar="N", help=THREADS_HELP)
     study.add_argument("--preset", choices=("fast", "balanced", "full"), default="fast",
                        help="preset of the refinement fits (default: fast)")
     study.add_argument("--sections", default="refinement,runtime,stability",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import time
 from pathlib import Path
 
@@ -104,6 +105,7 @@ def write_outputs(out, problem, state, held_out=()):
         "exposure": {"decision": problem.exposure_note,
                      "gain": torch.exp(avatar.exposure.detach()).cpu().tolist() if problem.exposure_on else None},
         "mask_cut_frames": problem.mask_cut_frames,
+        "cpu_threads": torch.get_num_threads(), "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY"),
     }
     if len(held_out):
         report[HELD_OUT_FRAMES] = [int(i) for i in held_out]
