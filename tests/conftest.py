@@ -43,3 +43,12 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+@pytest.fixture(autouse=True)
+def keep_torch_threads():
+    """`harp` commands run in-process (main([...])) set torch's thread count
+    (pipeline/threads.py); each test leaves it as it found it."""
+    threads = torch.get_num_threads()
+    yield
+    torch.set_num_threads(threads)
