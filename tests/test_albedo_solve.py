@@ -95,6 +95,13 @@ def test_the_solve_changes_only_the_texels_the_frames_show(problem):
         problem.avatar.albedo.copy_(before)
 
 
+def test_frames_that_show_no_usable_pixel_leave_the_albedo_as_it_is(problem):
+    problem, _ = problem
+    empty = dataclasses.replace(problem.clip, masks=torch.zeros_like(problem.clip.masks))
+    albedo, read = solved_albedo(dataclasses.replace(problem, clip=empty), shadows=False)
+    assert not read.any() and torch.equal(albedo, problem.avatar.albedo.detach().clamp(0, 1))
+
+
 def test_a_shadow_one_frame_shows_and_the_renderer_does_not_is_not_baked_in(problem):
     """A dark patch (a shadow edge, say) in one of the four frames, where the others show the
     texels clean: the second, consistency-weighted solve leaves it out; one unweighted solve

@@ -40,7 +40,7 @@ SMOOTHNESS = 1e-2       # neighbour pull, against the mean data weight of a solv
 ANCHOR = 1e-4           # the first solve's pull towards the current albedo, likewise
 WELL_SEEN = 8.0         # coverage of the texels that measure how far off the current albedo is
 PRIOR_COUNT = 4.0       # a texel's noise variance: the clip's, worth this many pixels, and its own
-OUTLIER_SCALE = 3.0     # residuals beyond this many of their texels' standard deviations lose weight
+OUTLIER_SCALE = 3.0     # residuals beyond this many of the clip's noise standard deviations lose weight
 REWEIGHTINGS = 3        # weighted solves after the first
 NOISE_FLOOR = 0.02      # the least noise (standard deviation) a pixel's colour is taken to have
 CG_ITERATIONS = 300
@@ -68,18 +68,21 @@ def solved_albedo(problem, shadows, batch_size=4):
     """((3, T, T) albedo in [0, 1] that explains the problem's frames best with its avatar's
     current geometry, light and exposure gains, (T, T) bool: texels the frames decide).
 
-    Two weighted least-squares solves, with the current albedo as the prior: the first with
-    every pixel alike and a weak pull (ANCHOR). From its residuals, each texel's noise variance
-    (pooled with the clip's, PRIOR_COUNT pixels' worth); each pixel is weighted by the inverse
-    variance of its texels and loses weight where it is an outlier for them (Cauchy,
-    OUTLIER_SCALE); the current albedo is weighted by the clip's noise over its own error where
-    the frames decide well (WELL_SEEN); and the albedo is solved again. Texels whose frames
+    Iteratively reweighted least squares, with the current albedo as the prior: a first solve
+    with every pixel alike and a weak pull (ANCHOR); then REWEIGHTINGS times, from the last
+    solve's residuals: each pixel loses weight where it is an outlier against the clip's noise
+    (Cauchy, OUTLIER_SCALE) and is weighted by the inverse noise variance of its texels (each
+    texel's from its pixels' residuals, pooled with the clip's, PRIOR_COUNT pixels' worth); the
+    current albedo is weighted by the clip's noise over its own error where the first solve is
+    well decided (WELL_SEEN); and the albedo is solved again. Texels whose frames
     disagree (what the renderer does not model: a shadow edge in the wrong place, a highlight)
     or that few pixels show lean on the current albedo; clean, well-seen texels follow the
     frames."""
     current = problem.avatar.albedo.detach().clamp(0, 1)
     size = current.shape[-1]
     seen = _observations(problem, shadows, batch_size, size)
+    if not len(seen.colour):                       # no frame shows a usable pixel of the hand
+        return current.clone(), torch.zeros(current.shape[1:], dtype=torch.bool, device=current.device)
     first = _NormalEquations(size, seen, torch.ones_like(seen.shading[:, 0]))
     albedo, solved = first.solve(current, ANCHOR * first.data_weight())
     prior = None
@@ -111,7 +114,7 @@ def _observations(problem, shadows, batch_size, size):
 
 
 def _consistency_weights(seen, albedo, size):
-    """((N,) each pixel's weight for the second solve; the clip's noise variance, the median
+    """((N,) each pixel's weight for the next solve; the clip's noise variance, the median
     squared residual, at least NOISE_FLOOR squared). A pixel's weight: a Cauchy weight of its
     residual against the clip's noise (an outlier: a shadow or highlight in one frame), times the
     clip's noise variance over its texels' (bilinear mix), each texel's from the residuals of
@@ -131,7 +134,7 @@ def _consistency_weights(seen, albedo, size):
 
 
 def _prior_weight(first, solved, current, clip_variance):
-    """The second solve's pull towards the current albedo: what a typical pixel adds to a
+    """The reweighted solves' pull towards the current albedo: what a typical pixel adds to a
     texel's diagonal, times the clip's noise variance in albedo units over the current albedo's
     mean squared difference from the first solve on the texels the frames decide well."""
     coverage = first.coverage.view(current.shape[1:])
