@@ -50,7 +50,7 @@ STENCIL = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
 
 @dataclasses.dataclass
 class _Observations:
-    """Every usable pixel of the fitted frames: its four texels (flat indices (N, 4)) and
+    """Every usable pixel of the fitted frames: its four texels (flat int32 indices (N, 4)) and
     bilinear weights (N, 4), its shading (N, 3) and colour (N, 3)."""
     texels: torch.Tensor
     weights: torch.Tensor
@@ -110,7 +110,7 @@ def _observations(problem, shadows, batch_size, size):
         parts.append((images["uv"][usable], shading[usable], clip.images[batch][usable]))
     uv, shading, colour = (torch.cat(column) for column in zip(*parts))
     rows, columns, weights = bilinear_texels(uv, size)
-    return _Observations(rows * size + columns, weights, shading, colour)
+    return _Observations((rows * size + columns).to(torch.int32), weights, shading, colour)   # int32: memory
 
 
 def _consistency_weights(seen, albedo, size):
