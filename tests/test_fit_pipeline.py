@@ -82,6 +82,15 @@ def test_interrupt_then_resume_reaches_the_same_result(tiny_clip, tmp_path, monk
         fitting.fit(tiny_clip, tmp_path / "fresh", resume=True, progress="none")
 
 
+def test_a_resumed_fit_may_switch_the_albedo_solve_but_no_stage_setting(tiny_clip, tmp_path):
+    options = dict(progress="none", max_steps=2, texture_size=64, batch_size=2, resolution=96)
+    out = tmp_path / "avatar"
+    assert fitting.fit(tiny_clip, out, solve_albedo=False, **options)["albedo_solve"] is None
+    assert fitting.fit(tiny_clip, out, resume=True, **options)["albedo_solve"]["solved_fraction"] > 0
+    with pytest.raises(fitting.FitError, match=r"other settings \(texture_size\)"):
+        fitting.fit(tiny_clip, out, resume=True, **{**options, "texture_size": 32})
+
+
 def test_killed_fit_resumes_from_its_last_checkpoint(tiny_clip, tmp_path):
     """A fit process killed outright (SIGKILL, no chance to save) right after a stage-end
     checkpoint: --resume finishes it with the final loss of an uninterrupted run (within 1%)."""

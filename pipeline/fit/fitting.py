@@ -31,6 +31,8 @@ from .texture_fill import fill_avatar_albedo
 
 SHADOW_AMBIENT_THRESHOLD = 0.75   # a fitted ambient ratio below this means a dominant light
 KNOWN_APPEARANCE = SHAPE + APPEARANCE   # what a fit with known appearance takes from another fit, frozen
+# settings of what runs after the stages: a resumed fit may change them (they do not touch the checkpoint)
+AFTER_THE_STAGES = ("solve_albedo",)
 
 __all__ = ["fit", "FitError", "FitObserver", "CHECKPOINT_FILE"]
 
@@ -167,8 +169,9 @@ class _CheckpointSaver:
         if saved.version != CHECKPOINT_VERSION:
             raise FitError(f"{self.path} was written by an older harp version (checkpoint {saved.version}): "
                            "fit again without --resume")
-        if vars(saved.settings) != vars(self.problem.settings):
-            changed = sorted(k for k, v in vars(saved.settings).items() if vars(self.problem.settings).get(k) != v)
+        changed = sorted(k for k, v in vars(saved.settings).items()
+                         if vars(self.problem.settings).get(k) != v and k not in AFTER_THE_STAGES)
+        if changed:
             raise FitError(f"{self.path} was written with other settings ({', '.join(changed)}): "
                            "resume with the options the fit started with")
         self.problem.avatar.load_state_dict(saved.avatar)
