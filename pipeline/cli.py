@@ -77,7 +77,7 @@ def _evaluate(args):
     from .evaluate import EVALUATION_FILE, evaluate_fit, summary_lines
 
     result = evaluate_fit(args.fit, args.sequence, held_out_steps=args.held_out_steps, device=args.device,
-                          novel_poses=args.novel_poses, progress=args.progress)
+                          novel_poses=args.novel_poses or args.cycles, progress=args.progress, cycles=args.cycles)
     for line in summary_lines(result):
         print(line)
     print(f"wrote {Path(args.fit) / EVALUATION_FILE}")
@@ -200,6 +200,9 @@ def build_parser():
     evaluate.add_argument("--novel-poses", action="store_true",
                           help="synthetic clips: the avatar against the true hand (geometry, new poses, texture detail; "
                                "fidelity.json, fidelity.png)")
+    evaluate.add_argument("--cycles", action="store_true",
+                          help="with --novel-poses: also against Cycles renders of the true hand under the clip's light "
+                               "(needs bpy; about 5 s per render, 14 renders)")
     evaluate.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar", help=PROGRESS_HELP)
     evaluate.set_defaults(run=_evaluate)
 

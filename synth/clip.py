@@ -111,7 +111,7 @@ def render_clip(settings, log=print):
     setup_seconds = time.perf_counter() - started
 
     # the Blender scene
-    scene = _new_scene(settings, K)
+    scene = new_scene(settings, K)
     hand_collection = bpy.data.collections.new("hand")
     scene.collection.children.link(hand_collection)
     rig = build_hand_rig(data, betas, offsets, collection=hand_collection)
@@ -157,7 +157,7 @@ def render_clip(settings, log=print):
             "seconds_per_frame": float(np.mean(frame_seconds))}
 
 
-def _new_scene(settings, K):
+def new_scene(settings, K):
     """An empty scene with Cycles settings and the camera at the world origin (OpenCV frame)."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene

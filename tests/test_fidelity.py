@@ -98,3 +98,41 @@ def test_a_known_displacement_is_measured(clip, tmp_path):
     assert geometry["surface_mm_mean"] == pytest.approx(1.0, rel=0.03)
     assert geometry["surface_mm_fitted_to_true"] == pytest.approx(1.0, rel=0.03)
     assert geometry["roughness_deg"] < 1.0             # an offset surface is as smooth as the original
+
+
+def test_only_a_synth_clip_has_a_cycles_truth(clip):
+    from pipeline.evaluate.cycles_truth import CyclesTruthUnavailable, synth_settings
+
+    with pytest.raises(CyclesTruthUnavailable, match="not rendered by synth/render.py"):
+        synth_settings(clip)
+
+
+def test_cycles_truth_shows_the_true_hand_where_our_renderer_does(tmp_path):
+    """Part (b)'s Cycles render of the true identity in a new pose and view covers the pixels
+    our renderer's render of it covers (the same placement and camera through Blender's rig),
+    and the avatar scored against it gives finite figures in every pose and view."""
+    pytest.importorskip("bpy")
+    import torch
+
+    from pipeline.evaluate.cycles_truth import cycles_truth
+    from pipeline.handmodel.lbs import HandModel
+    from synth_clips import render_tiny_clip
+
+    clip = render_tiny_clip(tmp_path / "clip", frames=2)
+    truth = fidelity.true_hand(clip)
+    model = HandModel(truth.data)
+    pose = fidelity.novel_poses()["thumbs_up"]
+    frames = [fidelity.framing(model, pose, *fidelity.VIEWS[view], size=96) for view in ("palm", "back")]
+    for (rgb, alpha), view in zip(cycles_truth(clip, frames), ("palm", "back")):
+        (ours, ours_alpha), = fidelity.render_posed([(model, fidelity.Appearance(truth.albedo))], model, pose,
+                                                    *fidelity.VIEWS[view], size=96)
+        ours_mask, cycles_mask = ours_alpha[0, ..., 0].numpy() > 0.5, alpha > 0.5
+        assert (ours_mask & cycles_mask).sum() / (ours_mask | cycles_mask).sum() > 0.95, view
+        assert rgb[cycles_mask].mean() > 0.2 and rgb[~cycles_mask].max() == 0     # skin over black
+    poses = {"thumbs_up": pose}
+    description = {"light": {"position": [0.0, -0.2, 0.0], "ambient": 0.5, "shadows": False}}
+    scores = fidelity.cycles_scores(clip, description, model, fidelity.Appearance(truth.albedo), model,
+                                    fidelity.Appearance(truth.albedo), poses)
+    assert len(scores["rows"]) == len(fidelity.VIEWS)
+    assert all(np.isfinite(row[key]) for row in scores["rows"] for key in ("psnr", "ssim", "iou"))
+    assert scores["iou_mean"] > 0.95 and torch.isfinite(torch.tensor(scores["renderer_floor"]["psnr_mean"]))

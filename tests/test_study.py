@@ -166,3 +166,16 @@ def test_study_on_two_tiny_clips_fills_every_cell(tmp_path):
     assert again["sections"]["refinement"]["rows"] == refinement["rows"]
     saved = json.loads((tmp_path / "study" / "study.json").read_text())
     assert saved["sections"]["stability"]["rows"] == stability["rows"]
+
+
+def test_a_target_counts_as_reached_only_once_the_curve_stays_there():
+    from pipeline.evaluate.study import _at_most, _settled_time
+
+    def curve(values):
+        return [{"fit_seconds": float(t), "joint_mm": v} for t, v in enumerate(values)]
+
+    below = lambda point: _at_most(point, "joint_mm", 4.0)  # noqa: E731
+    assert _settled_time(curve([6, 3.5, 4.5, 4.7]), below) is None            # dipped, rose again
+    assert _settled_time(curve([6, 3.5, 4.5, 3.9, 3.8]), below) == 3.0
+    assert _settled_time(curve([3, 3, 3]), below) == 0.0
+    assert _settled_time(curve([6, float("nan"), 3]), below) == 2.0

@@ -24,11 +24,12 @@ EVALUATION_FILE = "evaluation.json"
 HELD_OUT_PICTURE = "held_out_grid.png"
 
 
-def evaluate_fit(fit_folder, sequence, held_out_steps=100, device=None, novel_poses=False, progress="none"):
+def evaluate_fit(fit_folder, sequence, held_out_steps=100, device=None, novel_poses=False, progress="none",
+                 cycles=False):
     """Every evaluation that applies to this fit and sequence: held-out frames if the report
     lists some (and their picture, HELD_OUT_PICTURE), albedo if the sequence has gt_albedo.png,
     poses if it has gt.npz, and with `novel_poses` the avatar against the true hand
-    (fidelity.py). Writes evaluation.json into the fit folder and returns its content.
+    (fidelity.py; `cycles` adds its part against Cycles renders). Writes evaluation.json into the fit folder and returns its content.
     `progress` ("bar", "jsonl", "none") shows the held-out fit's steps and names each part."""
     log = progress_log(progress)
     folder, sequence = Path(fit_folder), Path(sequence)
@@ -54,7 +55,7 @@ def evaluate_fit(fit_folder, sequence, held_out_steps=100, device=None, novel_po
         result["poses"] = evaluate_poses(folder, sequence, device=device, held_out=held_out)
     if novel_poses:
         log("the avatar against the true hand in new poses")
-        result["fidelity"] = evaluate_fidelity(folder, sequence)
+        result["fidelity"] = evaluate_fidelity(folder, sequence, cycles=cycles)
     (folder / EVALUATION_FILE).write_text(json.dumps(result, indent=2))
     return result
 
@@ -91,6 +92,15 @@ def summary_lines(result):
                      f"{geometry['roughness_deg'] or float('nan'):.1f} deg; new poses PSNR {poses['psnr_mean']:.1f} dB "
                      f"(overlap {poses['psnr_overlap_mean']:.1f}), SSIM {poses['ssim_mean']:.3f}, IoU "
                      f"{poses['iou_mean']:.3f}; albedo sharpness {texture['sharpness_ratio']:.2f}")
+        cycles = result["fidelity"].get("cycles")
+        if cycles and "unavailable" in cycles:
+            lines.append(f"against Cycles: {cycles['unavailable']}")
+        elif cycles:
+            floor = cycles["renderer_floor"]
+            lines.append(f"against Cycles renders of the true hand under the clip's light: PSNR {cycles['psnr_mean']:.1f} "
+                         f"dB (overlap {cycles['psnr_overlap_mean']:.1f}), SSIM {cycles['ssim_mean']:.3f}, IoU "
+                         f"{cycles['iou_mean']:.3f}; the true hand by our renderer: PSNR {floor['psnr_mean']:.1f} dB, "
+                         f"SSIM {floor['ssim_mean']:.3f}")
     if "poses" in result:
         poses = result["poses"]
         for label, entry in (("fitted frames", poses), ("held-out frames", poses.get("held_out"))):

@@ -8,14 +8,17 @@ albedo (gt.npz: shape and personal offsets; gt_albedo.png).
                 surface distance (mm, both ways), the angle between their normals at the
                 closest points (degrees), and roughness: the mean absolute difference of the
                 dihedral angles of corresponding edges (degrees; facets and lumps raise it)
-    new poses   both rendered by our renderer in poses the clip does not contain (fist,
+    new poses   (a) both rendered by our renderer in poses the clip does not contain (fist,
                 spread, thumbs-up, pinch and three random poses inside the joint limits) from
                 two views (palm and back), under one light: PSNR and SSIM inside the union of
                 the two silhouettes and the silhouette IoU (and the PSNR where both silhouettes
                 overlap, which leaves the outline out and shows texture and shading alone). The avatar's albedo is first
                 multiplied by the per-channel scale that fits the truth best in the visible UV
                 area (albedo and light intensity trade off; evaluate/albedo.py), so the figures
-                judge shape, pose response and texture, not exposure; the raw PSNR is kept too
+                judge shape, pose response and texture, not exposure; the raw PSNR is kept too.
+                (b), with `cycles`: the avatar as fitted, under its fitted light, against the
+                true hand rendered by Cycles under the clip's own light (cycles_truth.py): what
+                a user sees; the true hand by our renderer against the same renders is the floor
     texture     the albedo against the truth in the visible UV area (evaluate/albedo.py), the
                 sharpness ratio (gradient energy of the fitted albedo over the truth's, in the
                 visible area) and a crop of the most detailed visible region (a tattoo, when the
@@ -157,25 +160,46 @@ def novel_poses(side="right"):
     return {name: mirror_axis_angle(pose) if side == "left" else pose for name, pose in poses.items()}
 
 
-def render_posed(subjects, truth_model, pose, azimuth, elevation, size=SIZE):
-    """[(rgb, alpha) (1, H, W, C)] of each (HandModel, Appearance) in `subjects` in `pose` from a
-    view, all placed and lit alike: the camera frames the truth's hand, a point light up and
-    left of the camera."""
+@dataclasses.dataclass
+class Framing:
+    """Where a new pose is shown: the camera (at the origin, OpenCV frame) and the hand's placement."""
+    K: torch.Tensor              # (3, 3)
+    global_orient: torch.Tensor  # (1, 3)
+    pose: torch.Tensor           # (1, 16, 3)
+    shift: torch.Tensor          # (3,) added to the posed model: the hand's box centred at `distance`
+    distance: float              # metres from the camera to the hand's box centre
+    size: int
+
+
+def framing(truth_model, pose, azimuth, elevation, size=SIZE) -> Framing:
+    """The camera frames the truth's hand (forearm left out) in `pose` seen from a view."""
     orient = view_orientation(azimuth, elevation)[None]
     joint_pose = torch.as_tensor(pose, dtype=torch.float32)[None]
     with torch.no_grad():
         truth = truth_model(pose=joint_pose, global_orient=orient).vertices
-        hand = torch.as_tensor(np.isin(truth_model.data.vertex_parts, HAND_PARTS))
-        low, high = truth[:, hand].amin(1), truth[:, hand].amax(1)
-        focal = 2.0 * size
-        distance = focal * (high - low)[0, :2].max().item() / (0.8 * size)
-        shift = torch.tensor([0.0, 0.0, distance]) - 0.5 * (low + high)
-        K = torch.tensor([[focal, 0, size / 2], [0, focal, size / 2], [0, 0, 1.0]])
-        light = Light(torch.tensor([0.3 * distance, -0.4 * distance, 0.2 * distance]), torch.tensor(AMBIENT))
-        images = []
-        for model, appearance in subjects:
-            vertices = model(pose=joint_pose, global_orient=orient).vertices + shift
-            out = render(vertices, RenderMesh.from_model_data(model.data), K, size, size, outputs=("rgb", "alpha"),
+    hand = torch.as_tensor(np.isin(truth_model.data.vertex_parts, HAND_PARTS))
+    low, high = truth[:, hand].amin(1), truth[:, hand].amax(1)
+    focal = 2.0 * size
+    distance = focal * (high - low)[0, :2].max().item() / (0.8 * size)
+    shift = torch.tensor([0.0, 0.0, distance]) - 0.5 * (low + high)[0]
+    K = torch.tensor([[focal, 0, size / 2], [0, focal, size / 2], [0, 0, 1.0]])
+    return Framing(K, orient, joint_pose, shift, distance, size)
+
+
+def render_posed(subjects, truth_model, pose, azimuth, elevation, size=SIZE, lights=None):
+    """[(rgb, alpha) (1, H, W, C)] of each (HandModel, Appearance) in `subjects` in `pose` from a
+    view, all placed alike (framing()); lit by a point light up and left of the camera, or each
+    by its own of `lights` (Light, or a function of the Framing giving one)."""
+    frame = framing(truth_model, pose, azimuth, elevation, size)
+    d = frame.distance
+    default = Light(torch.tensor([0.3 * d, -0.4 * d, 0.2 * d]), torch.tensor(AMBIENT))
+    images = []
+    with torch.no_grad():
+        for k, (model, appearance) in enumerate(subjects):
+            light = default if lights is None or lights[k] is None else lights[k]
+            light = light(frame) if callable(light) else light
+            vertices = model(pose=frame.pose, global_orient=frame.global_orient).vertices + frame.shift
+            out = render(vertices, RenderMesh.from_model_data(model.data), frame.K, size, size, outputs=("rgb", "alpha"),
                          appearance=appearance, light=light, background=torch.zeros(3))
             images.append((out["rgb"], out["alpha"]))
     return images
@@ -227,9 +251,11 @@ def detail_window(truth, visible, fraction=0.25):
 
 # ----------------------------------------------------------------------------- all of it
 
-def evaluate_fidelity(avatar_folder, sequence, picture=True):
+def evaluate_fidelity(avatar_folder, sequence, picture=True, cycles=False):
     """Every fidelity figure of an avatar folder against its synthetic sequence's true hand;
-    writes fidelity.json (and fidelity.png) into the avatar folder and returns the figures."""
+    writes fidelity.json (and fidelity.png) into the avatar folder and returns the figures.
+    With `cycles`, also the avatar under its fitted light against Cycles renders of the true
+    hand under the clip's light (cycles_truth.py; part (b), a few seconds per render)."""
     folder = Path(avatar_folder)
     truth = true_hand(sequence)
     avatar_model, appearance, files = load_avatar(folder)
@@ -262,11 +288,44 @@ def evaluate_fidelity(avatar_folder, sequence, picture=True):
                       "poses": list(poses), "views": VIEWS, "albedo_scale": texture["scale"]},
         "texture": texture,
     }
+    if cycles:
+        result["cycles"] = cycles_scores(sequence, files.description, avatar_model, appearance, truth_model,
+                                         truth_appearance, poses)
     if picture:
         window = detail_window(known.image, known.visible)
         result["picture"] = str(write_picture(folder / FIDELITY_PICTURE, renders, fitted_albedo, known.image, window))
     (folder / FIDELITY_FILE).write_text(json.dumps(result, indent=1))
     return result
+
+
+def cycles_scores(sequence, description, avatar_model, appearance, truth_model, truth_appearance, poses):
+    """Part (b): in every new pose and view, the avatar as fitted (its albedo unscaled, its fitted
+    light moved with the hand) against Cycles' render of the true hand under the clip's light;
+    and, as the floor our renderer sets, the true hand rendered by ours under that fitted light
+    against the same Cycles render. {"rows", "psnr_mean", ..., "renderer_floor": {...}} or
+    {"unavailable": why}."""
+    from .cycles_truth import CyclesTruthUnavailable, cycles_truth, fitted_light, synth_settings
+
+    try:
+        _, metadata = synth_settings(sequence)
+        cases = [(name, view) for name in poses for view in VIEWS]
+        frames = [framing(truth_model, poses[name], *VIEWS[view]) for name, view in cases]
+        renders = cycles_truth(sequence, frames)
+    except CyclesTruthUnavailable as reason:
+        return {"unavailable": str(reason)}
+    light = fitted_light(description, metadata)
+    rows, floor = [], []
+    for (name, view), (rgb, alpha) in zip(cases, renders):
+        (a_rgb, a_alpha), (t_rgb, t_alpha) = render_posed(
+            [(avatar_model, appearance), (truth_model, truth_appearance)], truth_model, poses[name], *VIEWS[view],
+            lights=[light, light])
+        cycles_rgb = torch.as_tensor(rgb[None], dtype=a_rgb.dtype)
+        cycles_alpha = torch.as_tensor(alpha[None, ..., None], dtype=a_rgb.dtype)
+        rows.append({"pose": name, "view": view, **image_scores(a_rgb, a_alpha, cycles_rgb, cycles_alpha)})
+        floor.append(image_scores(t_rgb, t_alpha, cycles_rgb, cycles_alpha))
+    keys = ("psnr", "ssim", "iou", "psnr_overlap")
+    return {"rows": rows, **{f"{key}_mean": float(np.mean([r[key] for r in rows])) for key in keys},
+            "renderer_floor": {f"{key}_mean": float(np.mean([r[key] for r in floor])) for key in keys}}
 
 
 def write_picture(path, renders, fitted_albedo, true_albedo, window):

@@ -12,7 +12,7 @@ run time of the presets, over a folder of synthetic clips as synth/dataset.py wr
    frames: Procrustes-aligned joint and vertex errors (mm) and the same unaligned.
 2. Error against run time: the presets on one clip (the first `flip` clip; every preset fits
    the same RUNTIME_FRAMES frames of it, spread evenly, so that `full` fits in a session on a
-   CPU), their anytime curves, and the fit time each needs to come within 5% of the `full`
+   CPU), their anytime curves, and the fit time from which each stays within 5% of the `full`
    preset's final L1 and joint error.
 3. The stability sweep (stability.py).
 
@@ -193,8 +193,8 @@ def _mean(values):
 # ----------------------------------------------------------------------------- 2. run time
 
 def runtime(clip, out, presets, progress, log, fit_options):
-    """Each preset fitted to `clip` (gt-noise initialisation) with its curve; the fit time at
-    which each comes within WITHIN of the `full` preset's (or the last preset's) final L1 and
+    """Each preset fitted to `clip` (gt-noise initialisation) with its curve; the fit time from
+    which each stays within WITHIN of the `full` preset's (or the last preset's) final L1 and
     joint error."""
     noisy = initialised(clip.folder, out / "sequences" / clip.name / "gt-noise", "gt-noise", log)
     folders = {}
@@ -208,9 +208,9 @@ def runtime(clip, out, presets, progress, log, fit_options):
     targets = {name: final[name] * (1 + WITHIN) for name in ("l1_mean", "joint_mm") if final.get(name) is not None}
     table = []
     for preset, points in curves.items():
-        reached = {name: _first_time(points, lambda p, n=name: _at_most(p, n, target))
+        reached = {name: _settled_time(points, lambda p, n=name: _at_most(p, n, target))
                    for name, target in targets.items()}
-        both = _first_time(points, lambda p: all(_at_most(p, n, t) for n, t in targets.items()))
+        both = _settled_time(points, lambda p: all(_at_most(p, n, t) for n, t in targets.items()))
         last = points[-1]
         table.append({"preset": preset, "fit_seconds": last["fit_seconds"], "final_l1": last.get("l1_mean"),
                       "final_joint_mm": last.get("joint_mm"), "seconds_to_l1": reached.get("l1_mean"),
@@ -225,5 +225,10 @@ def _at_most(point, name, target):
     return value is not None and math.isfinite(value) and value <= target
 
 
-def _first_time(points, condition):
-    return next((p["fit_seconds"] for p in points if condition(p)), None)
+def _settled_time(points, condition):
+    """The fit time from which `condition` holds at every later point of the curve (a figure
+    that dips under its target and rises again has not reached it), or None."""
+    settled = None
+    for point in points:
+        settled = (settled if settled is not None else point["fit_seconds"]) if condition(point) else None
+    return settled

@@ -82,7 +82,8 @@ def _runtime_table(section):
     lines = ["## 2. Error against run time", "",
              f"Clip `{section['clip']}`{_frames(section.get('frames'))}. Targets: within {section['within']:.0%} of "
              f"the `{section['reference']}` preset's final figures: L1 {_number(targets.get('l1_mean'), 4)}, joint error "
-             f"{_number(targets.get('joint_mm'))} mm. Seconds of fitting (measuring excluded).", "",
+             f"{_number(targets.get('joint_mm'))} mm. Seconds of fitting (measuring excluded) from which the figure stays "
+             "within its target to the end.", "",
              "| preset | fit s | final L1 | final joint PA mm | s to L1 target | s to joint target | s to both |",
              "|---|---|---|---|---|---|---|"]
     for row in section["table"]:
