@@ -45,18 +45,14 @@ def synth_settings(sequence):
     return ClipSettings(**values), metadata
 
 
-def fitted_light(description, metadata):
-    """A function of a fidelity.Framing giving the avatar's fitted light (avatar.json's) moved
-    from the clip's hand to the framed one: the clip's lights stand around the hand's pivot
-    at the clip's camera distance, and the new pose's around its own."""
+def fitted_light(description, metadata, frame):
+    """The avatar's fitted light (avatar.json's) moved from the clip's hand to the one `frame`
+    (a fidelity.Framing) places: the clip's lights stand around the hand at the clip's camera
+    distance, the new pose's around its own."""
     light = description["light"]
-    clip_distance = float(metadata["camera"]["distance_m"])
-
-    def moved(frame):
-        position = torch.tensor(light["position"], dtype=torch.float32)
-        position = position + torch.tensor([0.0, 0.0, frame.distance - clip_distance])
-        return Light(position, torch.tensor(float(light["ambient"])), shadows=bool(light["shadows"]))
-    return moved
+    position = torch.tensor(light["position"], dtype=torch.float32)
+    position = position + torch.tensor([0.0, 0.0, frame.distance - float(metadata["camera"]["distance_m"])])
+    return Light(position, torch.tensor(float(light["ambient"])), shadows=bool(light["shadows"]))
 
 
 def cycles_truth(sequence, framings):

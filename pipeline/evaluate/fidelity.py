@@ -186,21 +186,23 @@ def framing(truth_model, pose, azimuth, elevation, size=SIZE) -> Framing:
     return Framing(K, orient, joint_pose, shift, distance, size)
 
 
-def render_posed(subjects, truth_model, pose, azimuth, elevation, size=SIZE, lights=None):
+def render_posed(subjects, truth_model, pose, azimuth, elevation, size=SIZE):
     """[(rgb, alpha) (1, H, W, C)] of each (HandModel, Appearance) in `subjects` in `pose` from a
-    view, all placed alike (framing()); lit by a point light up and left of the camera, or each
-    by its own of `lights` (Light, or a function of the Framing giving one)."""
+    view, all placed alike (framing()) and lit by a point light up and left of the camera."""
     frame = framing(truth_model, pose, azimuth, elevation, size)
     d = frame.distance
-    default = Light(torch.tensor([0.3 * d, -0.4 * d, 0.2 * d]), torch.tensor(AMBIENT))
+    return render_framed(subjects, frame, Light(torch.tensor([0.3 * d, -0.4 * d, 0.2 * d]), torch.tensor(AMBIENT)))
+
+
+def render_framed(subjects, frame: Framing, light):
+    """[(rgb, alpha) (1, H, W, C)] of each (HandModel, Appearance) in `subjects` placed by `frame`
+    under `light`, over black."""
     images = []
     with torch.no_grad():
-        for k, (model, appearance) in enumerate(subjects):
-            light = default if lights is None or lights[k] is None else lights[k]
-            light = light(frame) if callable(light) else light
+        for model, appearance in subjects:
             vertices = model(pose=frame.pose, global_orient=frame.global_orient).vertices + frame.shift
-            out = render(vertices, RenderMesh.from_model_data(model.data), frame.K, size, size, outputs=("rgb", "alpha"),
-                         appearance=appearance, light=light, background=torch.zeros(3))
+            out = render(vertices, RenderMesh.from_model_data(model.data), frame.K, frame.size, frame.size,
+                         outputs=("rgb", "alpha"), appearance=appearance, light=light, background=torch.zeros(3))
             images.append((out["rgb"], out["alpha"]))
     return images
 
@@ -313,12 +315,11 @@ def cycles_scores(sequence, description, avatar_model, appearance, truth_model, 
         renders = cycles_truth(sequence, frames)
     except CyclesTruthUnavailable as reason:
         return {"unavailable": str(reason)}
-    light = fitted_light(description, metadata)
     rows, floor = [], []
-    for (name, view), (rgb, alpha) in zip(cases, renders):
-        (a_rgb, a_alpha), (t_rgb, t_alpha) = render_posed(
-            [(avatar_model, appearance), (truth_model, truth_appearance)], truth_model, poses[name], *VIEWS[view],
-            lights=[light, light])
+    for (name, view), frame, (rgb, alpha) in zip(cases, frames, renders):
+        light = fitted_light(description, metadata, frame)
+        (a_rgb, a_alpha), (t_rgb, t_alpha) = render_framed(
+            [(avatar_model, appearance), (truth_model, truth_appearance)], frame, light)
         cycles_rgb = torch.as_tensor(rgb[None], dtype=a_rgb.dtype)
         cycles_alpha = torch.as_tensor(alpha[None, ..., None], dtype=a_rgb.dtype)
         rows.append({"pose": name, "view": view, **image_scores(a_rgb, a_alpha, cycles_rgb, cycles_alpha)})

@@ -88,7 +88,7 @@ def solved_albedo(problem, shadows, batch_size=4):
     prior = None
     for _ in range(REWEIGHTINGS):
         weights, clip_variance = _consistency_weights(seen, albedo, size)
-        prior = _prior_weight(first, albedo, current, clip_variance) if prior is None else prior
+        prior = _prior_weight(seen, first.coverage, albedo, current, clip_variance) if prior is None else prior
         albedo, solved = _NormalEquations(size, seen, weights).solve(current, prior)
     return albedo, solved
 
@@ -133,18 +133,18 @@ def _consistency_weights(seen, albedo, size):
     return inlier * clip_variance / pixel_variance, clip_variance
 
 
-def _prior_weight(first, solved, current, clip_variance):
+def _prior_weight(seen, coverage, solved, current, clip_variance):
     """The reweighted solves' pull towards the current albedo: what a typical pixel adds to a
     texel's diagonal, times the clip's noise variance in albedo units over the current albedo's
     mean squared difference from the first solve on the texels the frames decide well."""
-    coverage = first.coverage.view(current.shape[1:])
+    coverage = coverage.view(current.shape[1:])
     well_seen = coverage >= WELL_SEEN
     if not well_seen.any():
         well_seen = coverage >= MIN_COVERAGE
     if not well_seen.any():
         return 0.0
-    shading_squared = (first.seen.shading ** 2).mean(1)
-    typical_pixel = (shading_squared * (first.seen.weights ** 2).sum(1)).mean()
+    shading_squared = (seen.shading ** 2).mean(1)
+    typical_pixel = (shading_squared * (seen.weights ** 2).sum(1)).mean()
     albedo_noise = clip_variance / shading_squared.mean()
     prior_error = (solved - current).pow(2).mean(0)[well_seen].mean().clamp(min=1e-8)
     return float(typical_pixel * albedo_noise / prior_error)
@@ -156,7 +156,7 @@ class _NormalEquations:
     (coverage)."""
 
     def __init__(self, size, seen, pixel_weight):
-        self.size, self.seen = size, seen
+        self.size = size
         dtype, device = seen.shading.dtype, seen.shading.device
         self.matrix = torch.zeros(3, size * size * len(STENCIL), dtype=dtype, device=device)
         self.rhs = torch.zeros(3, size * size, dtype=dtype, device=device)
