@@ -27,6 +27,15 @@ def _model_info(args):
     print(anatomy_report(getattr(args, "model", None)))
 
 
+def _budget(text):
+    from .fit.budget import parse_budget
+
+    try:
+        return parse_budget(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
 def _fit(args):
     configure_threads(args.threads)
     from .fit import fit
@@ -40,7 +49,7 @@ def _fit(args):
     report = fit(args.sequence, args.out, preset=args.preset, resume=args.resume, progress=args.progress,
                  device=args.device, shadows=args.shadows, hold_out_every=args.hold_out_every,
                  known_appearance=args.known_appearance, observers=observers, max_steps=args.max_steps,
-                 exposure=args.exposure, solve_albedo=args.solve_albedo)
+                 exposure=args.exposure, solve_albedo=args.solve_albedo, budget_seconds=args.budget)
     print(f"wrote {args.out} in {report['total_seconds']:.0f} s: {metrics_line(report['metrics'])}")
 
 
@@ -155,6 +164,9 @@ def build_parser():
     fit.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
     fit.add_argument("--hold-out-every", type=int, default=None, metavar="N",
                      help="leave every N-th frame out of the fit, for harp evaluate")
+    fit.add_argument("--budget", type=_budget, default=None, metavar="TIME",
+                     help="end within this time (e.g. 300, 90s, 10m, 1.5h): the stages' steps are cut where the "
+                          "study's curves show they buy least (docs/fit.md)")
     fit.add_argument("--max-steps", type=int, default=None, metavar="N",
                      help="cap every stage at N steps: a quick look, not a finished avatar")
     fit.add_argument("--curve", action="store_true",

@@ -154,6 +154,21 @@ def test_progress_as_json_lines(tiny_clip, tmp_path, capsys):
     assert any(e["event"] == "log" and "expected time" in e["message"] for e in events)
 
 
+def test_measuring_the_step_costs_changes_nothing_in_the_fit(tiny_clip, tmp_path, monkeypatch):
+    """The calibration's throwaway steps leave the avatar and the random draws as they were: a
+    fit that measures its step costs ends bit-for-bit where one that does not ends."""
+    options = dict(progress="none", max_steps=3, texture_size=64, batch_size=2, resolution=96)
+    plain = fitting.fit(tiny_clip, tmp_path / "plain", **options)
+    monkeypatch.setattr(fitting, "CALIBRATE_MIN_STEPS", 0)
+    measured = fitting.fit(tiny_clip, tmp_path / "measured", **options)
+    assert not plain["estimate"]["calibrated"] and measured["estimate"]["calibrated"]
+    assert measured["estimate"]["calibration_seconds"] > 0 and measured["estimate"]["expected_seconds"] > 0
+    first, second = (load_checkpoint(tmp_path / name / CHECKPOINT_FILE, "cpu").avatar
+                     for name in ("plain", "measured"))
+    for name, value in first.items():
+        assert torch.equal(value, second[name]), name
+
+
 def test_render_the_avatar_in_new_poses_views_and_lights(tiny_clip, tmp_path):
     import cv2
 

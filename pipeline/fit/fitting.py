@@ -21,6 +21,8 @@ from ..formats.sequence_folder import validate_sequence_folder
 from .albedo_solve import solve_avatar_albedo
 from .avatar import APPEARANCE, SHAPE
 from .checkpoint import CHECKPOINT_FILE, CHECKPOINT_VERSION, Checkpoint, FitState, load_checkpoint, save_checkpoint
+from .budget import REPLAN_STEPS, BudgetKeeper
+from .estimate import CALIBRATE_MIN_STEPS, TimeLeft, calibrate, fallback_costs, remaining_plan, step_kind
 from .frames import held_out_frames, select_frames
 from .outputs import write_outputs
 from .problem import FitError, FitProblem, build_problem
@@ -33,6 +35,8 @@ SHADOW_AMBIENT_THRESHOLD = 0.75   # a fitted ambient ratio below this means a do
 KNOWN_APPEARANCE = SHAPE + APPEARANCE   # what a fit with known appearance takes from another fit, frozen
 # settings of what runs after the stages: a resumed fit may change them (they do not touch the checkpoint)
 AFTER_THE_STAGES = ("solve_albedo",)
+# what a budget plans: a budgeted fit resumes with a new budget, or without one on its saved plan
+BUDGET_PLANNED = ("budget_seconds", "steps", "align_steps")
 
 __all__ = ["fit", "FitError", "FitObserver", "CHECKPOINT_FILE"]
 
@@ -58,6 +62,7 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
     hold_out_every=N leaves every N-th frame out (frames.py) for held-out evaluation;
     known_appearance=AVATAR takes shape, displacements, textures and light from that finished
     fit, frozen, and fits only the per-frame poses (HARP-known); `overrides` replace settings."""
+    started = time.perf_counter()
     sequence, out = Path(sequence), Path(out)
     problem, held_out = _set_up(sequence, preset, device, shadows, max_steps, hold_out_every, known_appearance,
                                 overrides)
@@ -65,13 +70,13 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
     out.mkdir(parents=True, exist_ok=True)
     saver = _CheckpointSaver(out / CHECKPOINT_FILE, problem)
     state, generator, optimiser_state = saver.resume() if resume else saver.fresh(len(stages))
-    clock = _FitClock(state)
-    steps_left = sum(s.steps for i, s in enumerate(stages) if i >= state.stage and parameter_groups(problem, s))
-    with Progress(progress, steps_left - state.step) as reporter, _interrupt_flag() as interrupted:
-        reporter.log(_opening_line(problem, preset))
+    estimate = _Estimate(problem, state, started)
+    clock = _FitClock(state)      # after the estimate: measuring the step costs is no stage's time
+    with Progress(progress, estimate.steps_left) as reporter, _interrupt_flag() as interrupted:
+        reporter.log(_opening_line(problem, preset, estimate))
         clock.observe(observers, "start", problem)
         for index in range(state.stage, len(stages)):
-            run = StageRun(problem, stages[index], state, generator, optimiser_state)
+            run = StageRun(problem, problem.settings.stages()[index], state, generator, optimiser_state)
             optimiser_state = None
             while run.has_work and not run.finished:
                 if interrupted.is_set():
@@ -79,9 +84,10 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
                     saver.save(state, run, generator)
                     reporter.log(f"interrupted: saved {saver.path}; continue with --resume")
                     raise KeyboardInterrupt
+                kind = step_kind(run.stage, run.shadows())
                 result = run.step()
                 clock.charge()
-                reporter.update(run.stage.name, state.step, result.loss)
+                reporter.update(run.stage.name, state.step, result.loss, *estimate.step(kind, run))
                 if result.event:
                     reporter.log(result.event)
                 _decide_shadows(problem, run, reporter)
@@ -90,20 +96,26 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
             clock.charge()
             state.stage, state.step, state.order = index + 1, 0, []
             saver.save(state, None, generator)
-        if state.albedo_solve is None and problem.settings.solve_albedo and not problem.known_appearance:
-            state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on)
-            reporter.log(f"albedo solved from the frames on the final geometry and light: "
-                         f"{state.albedo_solve['solved_fraction']:.0%} of the texels "
-                         f"(mean change {state.albedo_solve['mean_change']:.3f})")
-            saver.save(state, None, generator)
-        if state.texture_fill is None and not problem.known_appearance:
-            state.texture_fill = fill_avatar_albedo(problem.avatar, problem.clip)
-            reporter.log(f"albedo: {state.texture_fill['unseen_fraction']:.0%} of the texels never seen, filled "
-                         f"through the surface (seam contrast {state.texture_fill['seam_contrast_before']:.3f} -> "
-                         f"{state.texture_fill['seam_contrast_after']:.3f})")
-            saver.save(state, None, generator)
+        _after_the_stages(problem, state, reporter, lambda: saver.save(state, None, generator))
         clock.observe(observers, "end", problem)
-    return write_outputs(out, problem, state, held_out)
+    return write_outputs(out, problem, state, held_out, estimate=estimate.report())
+
+
+def _after_the_stages(problem, state, reporter, save):
+    """The albedo solved from the frames, then the unseen texels filled (each once: a resumed
+    fit skips what has run)."""
+    if state.albedo_solve is None and problem.settings.solve_albedo and not problem.known_appearance:
+        state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on)
+        reporter.log(f"albedo solved from the frames on the final geometry and light: "
+                     f"{state.albedo_solve['solved_fraction']:.0%} of the texels "
+                     f"(mean change {state.albedo_solve['mean_change']:.3f})")
+        save()
+    if state.texture_fill is None and not problem.known_appearance:
+        state.texture_fill = fill_avatar_albedo(problem.avatar, problem.clip)
+        reporter.log(f"albedo: {state.texture_fill['unseen_fraction']:.0%} of the texels never seen, filled "
+                     f"through the surface (seam contrast {state.texture_fill['seam_contrast_before']:.3f} -> "
+                     f"{state.texture_fill['seam_contrast_after']:.3f})")
+        save()
 
 
 def _set_up(sequence, preset, device, shadows, max_steps, hold_out_every, known_appearance, overrides):
@@ -130,14 +142,16 @@ def _set_up(sequence, preset, device, shadows, max_steps, hold_out_every, known_
     return problem, held_out
 
 
-def _opening_line(problem, preset):
+def _opening_line(problem, preset, estimate):
     settings, initial = problem.settings, problem.initial
     known = ", appearance known (frozen)" if problem.known_appearance else ""
     return (f"fitting {len(problem.frames)} frames ({initial.mode} mode, {initial.side} hand) with preset {preset}"
             f"{known}, perceptual term {problem.perceptual_name}, exposure gains {problem.exposure_note}"
             + (f"; {problem.mask_cut_frames} masks end mid-forearm (a sleeve?): the silhouette beyond that line is "
                "not compared" if problem.mask_cut_frames else "")
-            + f"; expected time {settings.expected_seconds(len(problem.frames)) / 60:.1f} min on {problem.device}")
+            + f"; expected time {estimate.expected_seconds / 60:.1f} min on {problem.device} "
+            + (f"(step costs measured in {estimate.costs.calibration_seconds:.0f} s)" if estimate.costs.calibrated
+               else "(a small fit: step costs not measured)"))
 
 
 def _decide_shadows(problem, run, reporter):
@@ -149,6 +163,63 @@ def _decide_shadows(problem, run, reporter):
     ambient = problem.avatar.ambient.item()
     decision.on, decision.decided, decision.ambient_at_decision = ambient < SHADOW_AMBIENT_THRESHOLD, True, ambient
     reporter.log(f"shadows auto: fitted ambient ratio {ambient:.2f} -> self-shadowing {'on' if decision.on else 'off'}")
+
+
+class _Estimate:
+    """The fit's time: step costs measured before the stages (estimate.calibrate; a small fit
+    takes the fallback model), the time left after each step, a trace of it for the report
+    (every TRACE_SECONDS), so that the estimate can be checked against the truth, and, with a
+    budget (settings.budget_seconds), the steps re-planned to fit it (budget.BudgetKeeper)."""
+
+    TRACE_SECONDS = 10.0
+
+    def __init__(self, problem, state, started):
+        self.problem, self.state = problem, state
+        stages = problem.settings.stages()
+        active = {stage.name: stage.steps > 0 and bool(parameter_groups(problem, stage)) for stage in stages}
+        self.active = lambda stage: active[stage.name]
+        plan = self.plan()
+        budget = problem.settings.budget_seconds
+        if budget is not None or sum(steps for _, steps in plan) >= CALIBRATE_MIN_STEPS:
+            self.costs = calibrate(problem, stages, sorted({kind for kind, _ in plan}))
+        else:
+            self.costs = fallback_costs(problem.settings, len(problem.frames))
+        self.time_left = TimeLeft(self.costs)
+        self.budget = None if budget is None else BudgetKeeper(problem, state, self, started, state.fit_seconds)
+        if self.budget is not None:
+            self.budget.replan(time.perf_counter())
+        plan = self.plan()
+        self.steps_left = int(round(sum(steps for _, steps in plan)))
+        self.expected_seconds = self.costs.plan_seconds(plan)
+        self.start = self.last_step = time.perf_counter()
+        self.trace = [[0.0, round(self.expected_seconds, 1)]]
+
+    def plan(self):
+        return remaining_plan(self.problem.settings.stages(), self.state, self.problem.settings.shadows, self.active)
+
+    def step(self, kind, run):
+        """(seconds left, steps left) after a step of `kind` (timed from the previous call) in
+        `run`, the StageRun under way (a budget may change its steps)."""
+        now = time.perf_counter()
+        self.time_left.step(kind, now - self.last_step)
+        self.last_step = now
+        if self.budget is not None and self.state.step % REPLAN_STEPS == 0:
+            self.budget.replan(now, run)
+        plan = self.plan()
+        left = self.time_left.seconds_left(plan)
+        if now - self.start >= self.trace[-1][0] + self.TRACE_SECONDS:
+            self.trace.append([round(now - self.start, 1), round(left, 1)])
+        return left, int(round(sum(steps for _, steps in plan)))
+
+    def report(self):
+        """This session's estimate (a resumed fit estimates what it has left), for report.json;
+        its `seconds_before_outputs` plus the report's output_seconds is the true time it estimated."""
+        return {"expected_seconds": round(self.expected_seconds, 1), "calibrated": self.costs.calibrated,
+                "calibration_seconds": round(self.costs.calibration_seconds, 1),
+                "step_seconds": {kind: round(cost, 4) for kind, cost in self.costs.seconds.items()},
+                "after_stages_seconds": round(self.costs.after_stages, 1),
+                "budget_seconds": self.problem.settings.budget_seconds,
+                "seconds_before_outputs": round(time.perf_counter() - self.start, 1), "time_left": self.trace}
 
 
 class _CheckpointSaver:
@@ -169,8 +240,14 @@ class _CheckpointSaver:
         if saved.version != CHECKPOINT_VERSION:
             raise FitError(f"{self.path} was written by an older harp version (checkpoint {saved.version}): "
                            "fit again without --resume")
+        settings, tolerated = self.problem.settings, AFTER_THE_STAGES
+        if saved.settings.budget_seconds is not None or settings.budget_seconds is not None:
+            tolerated += BUDGET_PLANNED
+            if settings.budget_seconds is None:
+                for name in BUDGET_PLANNED:
+                    setattr(settings, name, getattr(saved.settings, name))
         changed = sorted(k for k, v in vars(saved.settings).items()
-                         if vars(self.problem.settings).get(k) != v and k not in AFTER_THE_STAGES)
+                         if vars(settings).get(k) != v and k not in tolerated)
         if changed:
             raise FitError(f"{self.path} was written with other settings ({', '.join(changed)}): "
                            "resume with the options the fit started with")

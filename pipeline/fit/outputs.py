@@ -78,9 +78,10 @@ def metrics_line(scores):
             f"MS-SSIM {scores.get('ms_ssim_mean', float('nan')):.3f}")
 
 
-def write_outputs(out, problem, state, held_out=()):
+def write_outputs(out, problem, state, held_out=(), estimate=None):
     """The avatar folder, report.json, fit_grid.png and overlay.mp4 of a finished fit; returns
-    the report. `held_out` are the sequence frames left out for evaluation."""
+    the report. `held_out` are the sequence frames left out for evaluation; `estimate` is the
+    fit's time estimate and its trace (fitting._Estimate.report)."""
     out = Path(out)
     start = time.time()
     avatar, clip, settings = problem.avatar, problem.clip, problem.settings
@@ -107,6 +108,8 @@ def write_outputs(out, problem, state, held_out=()):
         "mask_cut_frames": problem.mask_cut_frames,
         "cpu_threads": torch.get_num_threads(), "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY"),
     }
+    if estimate is not None:
+        report["estimate"] = estimate
     if len(held_out):
         report[HELD_OUT_FRAMES] = [int(i) for i in held_out]
     write_report(out, report)

@@ -17,22 +17,30 @@ def progress_log(kind):
 
 
 class Progress:
-    """Counts steps towards `total`; `kind` is "bar", "jsonl" or "none"."""
+    """Counts steps towards `total`; `kind` is "bar", "jsonl" or "none". The time left is the
+    caller's (a fit's stages cost differently: estimate.TimeLeft) or, without one, the steps
+    left at the average rate so far."""
 
     def __init__(self, kind, total):
         self.kind, self.total, self.done, self.start = kind, total, 0, time.time()
         self.bar = None
         if kind == "bar":
             from tqdm import tqdm
-            self.bar = tqdm(total=total, unit="step", dynamic_ncols=True)
+            self.bar = tqdm(total=total, unit="step", dynamic_ncols=True,
+                            bar_format="{desc}{percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")
 
-    def update(self, stage, step, loss):
+    def update(self, stage, step, loss, seconds_left=None, steps_left=None):
+        """One step done; `steps_left` (when given) replaces the total (a budget re-plans)."""
         self.done += 1
+        if steps_left is not None and self.done + steps_left != self.total:
+            self.total = self.done + steps_left
+            if self.bar is not None:
+                self.bar.total = self.total
         elapsed = time.time() - self.start
-        left = elapsed / self.done * (self.total - self.done)
+        left = seconds_left if seconds_left is not None else elapsed / self.done * (self.total - self.done)
         if self.bar is not None:
             self.bar.set_description(stage)
-            self.bar.set_postfix(loss=f"{loss:.4f}")
+            self.bar.set_postfix_str(f"{_clock(left)} left, loss {loss:.4f}", refresh=False)
             self.bar.update(1)
         elif self.kind == "jsonl" and (self.done % 10 == 0 or self.done == self.total):
             finite = loss if math.isfinite(loss) else None
@@ -63,3 +71,10 @@ class Progress:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def _clock(seconds):
+    """H:MM:SS or M:SS."""
+    seconds = max(0, int(round(seconds)))
+    hours, rest = divmod(seconds, 3600)
+    return f"{hours}:{rest // 60:02d}:{rest % 60:02d}" if hours else f"{rest // 60}:{rest % 60:02d}"

@@ -14,6 +14,10 @@ WEIGHTS = {  # appendix Table C.1
 }
 
 
+# settings that earlier versions stored; the step costs are now measured (estimate.py)
+RETIRED = ("seconds_per_step", "seconds_per_align_frame")
+
+
 @dataclasses.dataclass(frozen=True)
 class Stage:
     name: str
@@ -49,9 +53,8 @@ class FitSettings:
     weights: dict = dataclasses.field(default_factory=lambda: dict(WEIGHTS))
     perceptual_weights: str | None = None   # local VGG16 file; default: weight-free pyramid
     checkpoint_seconds: float = 120.0
+    budget_seconds: float | None = None   # the steps are cut to end within this (budget.py)
     seed: int = 0
-    seconds_per_step: tuple = (0.12, 0.35, 0.24)  # 2-core CPU cost per step of each stage, for the estimate
-    seconds_per_align_frame: float = 0.006
 
     def stages(self):
         """The alignment (ours: it widens the basin the three stages start from), then the
@@ -60,19 +63,13 @@ class FitSettings:
         return (Stage("align", self.align_steps, True, False, coarse=True), Stage("geometry", geometry, True, False),
                 Stage("geometry+appearance", joint, True, True), Stage("appearance", appearance, False, True))
 
-    def expected_seconds(self, frame_count):
-        scale = (self.batch_size / 6) * (self.resolution / 256) ** 2
-        align = self.align_steps * min(frame_count, self.max_frames) * self.seconds_per_align_frame
-        return sum(s * c for s, c in zip(self.steps, self.seconds_per_step)) * scale + align
-
-
     @classmethod
     def from_dict(cls, values):
-        """FitSettings from vars() of one (as a checkpoint stores them); unknown keys are an error."""
-        values = dict(values)
-        for name in ("steps", "seconds_per_step"):
-            if name in values:
-                values[name] = tuple(values[name])
+        """FitSettings from vars() of one (as a checkpoint stores them); unknown keys are an error
+        (RETIRED ones are dropped: checkpoints from before their retirement still load)."""
+        values = {k: v for k, v in values.items() if k not in RETIRED}
+        if "steps" in values:
+            values["steps"] = tuple(values["steps"])
         return cls(**values)
 
 

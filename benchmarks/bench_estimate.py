@@ -1,0 +1,89 @@
+"""Benchmark: the fit's printed time estimate and its time left against the truth.
+
+    .venv/bin/python benchmarks/bench_estimate.py SEQ [--presets fast,full] [--work DIR]
+                     [--max-steps N] [--threads N]
+
+Runs `harp fit SEQ --preset P` for each preset (or reads a finished fit already in DIR/P) and
+prints, from its report.json: the estimate printed before the stages, the true time from then
+to the end of the outputs, their ratio, and the worst error of the progress bar's time left
+after the first minute (the speed issue's targets: within 25% both). The traces go to
+DIR/bench_estimate.json and a plot (estimated against true time left) to DIR/bench_estimate.png.
+Run it alone: a second busy process changes the truth while the fit runs.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SETTLED_SECONDS = 60.0
+
+
+def fitted(sequence, out, preset, max_steps, threads):
+    """report.json of a fit (run unless it has finished before)."""
+    if not (out / "report.json").is_file():
+        argv = [sys.executable, "-m", "pipeline.cli", "fit", str(sequence), "--out", str(out), "--preset", preset,
+                "--progress", "none"]
+        argv += ["--max-steps", str(max_steps)] if max_steps else []
+        argv += ["--threads", str(threads)] if threads else []
+        subprocess.run(argv, cwd=ROOT, check=True)
+    return json.loads((out / "report.json").read_text())
+
+
+def figures(report):
+    """The estimate against the truth, from a report's "estimate" (fitting._Estimate.report)."""
+    estimate = report["estimate"]
+    true_seconds = estimate["seconds_before_outputs"] + report["output_seconds"]
+    trace = [(elapsed, left, true_seconds - elapsed) for elapsed, left in estimate["time_left"]]
+    errors = [abs(left - truth) / truth for elapsed, left, truth in trace if elapsed >= SETTLED_SECONDS and truth > 0]
+    return {"expected_seconds": estimate["expected_seconds"], "true_seconds": round(true_seconds, 1),
+            "expected_over_true": round(estimate["expected_seconds"] / true_seconds, 3),
+            "calibration_seconds": estimate["calibration_seconds"],
+            "worst_time_left_error_after_first_minute": round(max(errors), 3) if errors else None,
+            "trace": trace}
+
+
+def plot(results, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axis = plt.subplots(figsize=(6, 4))
+    for preset, result in results.items():
+        elapsed, left, truth = zip(*result["trace"])
+        line, = axis.plot(elapsed, left, label=f"{preset}: estimated")
+        axis.plot(elapsed, truth, "--", color=line.get_color(), label=f"{preset}: true")
+    axis.axvline(SETTLED_SECONDS, color="grey", linewidth=0.5)
+    axis.set_xlabel("seconds into the fit")
+    axis.set_ylabel("seconds left")
+    axis.legend()
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("sequence")
+    parser.add_argument("--presets", default="fast,full")
+    parser.add_argument("--work", default="bench_estimate_work")
+    parser.add_argument("--max-steps", type=int)
+    parser.add_argument("--threads", type=int)
+    args = parser.parse_args()
+    work = Path(args.work)
+    work.mkdir(parents=True, exist_ok=True)
+    results = {}
+    for preset in args.presets.split(","):
+        results[preset] = figures(fitted(Path(args.sequence).resolve(), work / preset, preset, args.max_steps,
+                                         args.threads))
+        shown = {k: v for k, v in results[preset].items() if k != "trace"}
+        print(json.dumps({"preset": preset, **shown}), flush=True)
+    (work / "bench_estimate.json").write_text(json.dumps(results, indent=1))
+    plot(results, work / "bench_estimate.png")
+
+
+if __name__ == "__main__":
+    main()

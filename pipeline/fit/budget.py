@@ -1,0 +1,99 @@
+"""A time budget for a fit (`harp fit --budget 10m`): the stages' steps are cut so that the fit,
+the work after the stages included, ends within the budget.
+
+Where the time goes follows the study's error-against-run-time curves (docs/study.md, the
+run-time section): the alignment brings the joint error down within its first 20-30 steps; the
+joint stage buys nearly all of the photometric error (L1 0.134 to 0.039 in its first 80 steps
+on the sun clip); the geometry stage (silhouette alone) and the appearance stage move neither
+figure much (the appearance stage took L1 from 0.0364 to 0.0358 in 150 s). So when a schedule
+does not fit its budget, steps are cut in CUT_ORDER, each stage down to its floor (a share of
+its planned steps), and only then every stage alike. A budget larger than the schedule needs
+changes nothing: the fit ends early.
+
+The plan is made with the step costs measured before the stages (estimate.calibrate) and made
+again every REPLAN_STEPS steps with the rates the fit actually runs at, so a fit that runs
+slower than measured still ends on time.
+"""
+from __future__ import annotations
+
+import re
+
+CUT_ORDER = (("appearance", 0.25), ("geometry", 0.25), ("align", 0.3))
+REPLAN_STEPS = 10
+AIM = 0.97          # plan for this share of the time left (the last steps and the outputs vary)
+
+_UNITS = {"s": 1, "m": 60, "min": 60, "h": 3600}
+
+
+def parse_budget(text) -> float:
+    """Seconds of a budget written as 600, 90s, 10m, 1.5h."""
+    match = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*(s|m|min|h)?\s*", str(text))
+    if not match or float(match.group(1)) <= 0:
+        raise ValueError(f"--budget {text!r}: give a positive time such as 300, 90s, 10m or 1.5h")
+    return float(match.group(1)) * _UNITS[match.group(2) or "s"]
+
+
+def budget_steps(planned, done, seconds_per_step, seconds) -> dict:
+    """Steps of each stage (name -> total steps, those done included) that fit in `seconds`.
+    `planned`: the schedule's steps per stage; `done`: steps already taken per stage (the
+    stages past and the one under way); `seconds_per_step`: per stage, for the steps left."""
+    steps = dict(planned)
+
+    def cost():
+        return sum(max(0, steps[name] - done.get(name, 0)) * seconds_per_step[name] for name in steps)
+
+    for name, floor in CUT_ORDER:
+        if name not in steps or cost() <= seconds:
+            continue
+        lowest = max(done.get(name, 0), round(floor * planned[name]))
+        over = cost() - seconds
+        steps[name] = max(lowest, steps[name] - int(-(-over // seconds_per_step[name])))
+    if cost() > seconds:
+        left = {name: max(0, steps[name] - done.get(name, 0)) for name in steps}
+        scale = max(0.0, seconds) / max(cost(), 1e-9)
+        for name, count in left.items():
+            if count:
+                steps[name] = done.get(name, 0) + max(1, int(count * scale))
+    return steps
+
+
+class BudgetKeeper:
+    """Holds a fit to problem.settings.budget_seconds: `replan()` at the start and every
+    REPLAN_STEPS steps rewrites the settings' steps (and the running stage's) to what fits in
+    the time left, costed by `estimate` (fitting._Estimate: the plan and the measured rates).
+    `started` is the fit's perf_counter start; `spent_before` the fitting time of earlier
+    sessions of a resumed fit."""
+
+    def __init__(self, problem, state, estimate, started, spent_before=0.0):
+        self.problem, self.state, self.estimate = problem, state, estimate
+        self.started, self.spent_before = started, spent_before
+        self.planned = {stage.name: stage.steps for stage in problem.settings.stages() if estimate.active(stage)}
+
+    @property
+    def seconds(self):
+        return self.problem.settings.budget_seconds
+
+    def spent(self, now):
+        return self.spent_before + now - self.started
+
+    def replan(self, now, run=None):
+        """New step counts from the time left at `now`; returns the steps still to take."""
+        settings, state, time_left = self.problem.settings, self.state, self.estimate.time_left
+        stages = settings.stages()
+        done = {stage.name: (stage.steps if index < state.stage else state.step if index == state.stage else 0)
+                for index, stage in enumerate(stages)}
+        rates = dict.fromkeys(self.planned, 0.0)
+        counts = dict.fromkeys(self.planned, 0.0)
+        for kind, steps in self.estimate.plan():
+            name = kind.split(" ")[0]
+            rates[name] += time_left.rate(kind) * steps
+            counts[name] += steps
+        rates = {name: rates[name] / counts[name] if counts[name] else
+                 time_left.rate(name) for name in rates}
+        available = AIM * (self.seconds - self.spent(now)) - self.estimate.costs.after_stages * time_left.speed
+        steps = budget_steps(self.planned, done, rates, available)
+        settings.align_steps = steps.get("align", settings.align_steps)
+        settings.steps = tuple(steps.get(stage.name, stage.steps) for stage in stages[1:])
+        if run is not None:
+            run.stage = settings.stages()[state.stage]
+        return int(round(sum(steps for _, steps in self.estimate.plan())))

@@ -1,0 +1,161 @@
+"""How long a fit will take, measured rather than guessed.
+
+Before the stages start, `calibrate` times a few throwaway steps of each kind the fit will take
+(the alignment, the geometry stage, the joint and appearance stages with and without
+self-shadowing) at the fit's own frames, working size and batch, then puts the avatar back
+bit-for-bit. The per-step costs give the estimate printed before the fit.
+
+While the fit runs, `TimeLeft` turns them into the time left: the stage under way at its own
+observed rate (the median of its recent steps), the stages to come at their calibrated cost
+scaled by how fast this machine has been running in the last minute or so compared with the
+calibration (a second process that starts halfway slows every stage alike). The work after the stages (the
+albedo solve, the texture fill, the outputs: every frame rendered a few times) is costed from
+the appearance step's cost per frame.
+
+Small fits (tests, quick looks) skip the calibration: their estimate uses FALLBACK_COSTS.
+"""
+from __future__ import annotations
+
+import collections
+import copy
+import dataclasses
+import math
+import statistics
+import time
+
+import torch
+
+from .checkpoint import FitState
+from .settings import Stage
+
+WARM_UP_STEPS = 1            # untimed steps before the first timed one (allocations, thread start)
+TIMED_STEPS = 2              # timed steps per kind of step
+CALIBRATE_MIN_STEPS = 150    # fits with fewer steps left take FALLBACK_COSTS instead of calibrating
+RECENT_STEPS = 15            # a stage's rate: the median of this many of its latest steps...
+OWN_RATE_AFTER = 4           # ...once it has taken this many
+SPEED_PRIOR_SECONDS = 20.0   # the machine's observed speed counts once this much has been timed...
+SPEED_MEMORY_SECONDS = 60.0  # ...and follows a change (another process starting) over about this long
+AFTER_STAGES_FACTOR = 3.0    # albedo solve + fill + outputs: this many appearance steps per batch of frames
+# seconds per step at 256 px and batches of 6 (the alignment: per frame), measured on a 2-core CPU
+FALLBACK_COSTS = {"align": 0.03, "geometry": 0.5, "geometry+appearance": 1.1, "geometry+appearance shadows": 1.4,
+                  "appearance": 0.8, "appearance shadows": 1.1}
+
+
+def step_kind(stage: Stage, shadows: bool) -> str:
+    """The kind of a step for its cost: the stage, and self-shadowing where it renders shading."""
+    return stage.name + (" shadows" if shadows and stage.appearance else "")
+
+
+@dataclasses.dataclass
+class StepCosts:
+    """Seconds per step of each kind (step_kind), and seconds of the work after the stages."""
+
+    seconds: dict
+    after_stages: float
+    calibrated: bool
+    calibration_seconds: float = 0.0
+
+    def plan_seconds(self, plan) -> float:
+        """Seconds for a plan: [(kind, steps)], plus the work after the stages."""
+        return sum(self.seconds[kind] * steps for kind, steps in plan) + self.after_stages
+
+
+def remaining_plan(stages, state: FitState, shadows_requested: str, active) -> list:
+    """[(kind, steps)] still to take from `state` on; `active(stage)` says whether a stage has
+    anything to move. An undecided `auto` self-shadowing (decided half-way through the joint
+    stage) counts its later steps half with, half without shadows."""
+    decision = state.shadows
+    plan = []
+    for index, stage in enumerate(stages):
+        if index < state.stage or not active(stage):
+            continue
+        steps = stage.steps - (state.step if index == state.stage else 0)
+        if steps <= 0:
+            continue
+        if decision.decided or shadows_requested != "auto" or not stage.appearance:
+            plan.append((step_kind(stage, decision.on), steps))
+            continue
+        # the decision comes half-way through the joint stage: the steps before it take none
+        done = state.step if index == state.stage else 0
+        before = max(0, stage.steps // 2 - done) if stage.name == "geometry+appearance" else 0
+        undecided = steps - before
+        plan += [(step_kind(stage, False), before + undecided / 2), (step_kind(stage, True), undecided / 2)]
+    return [(kind, steps) for kind, steps in plan if steps > 0]
+
+
+def fallback_costs(settings, frame_count) -> StepCosts:
+    """The cost model of a small fit: FALLBACK_COSTS scaled by batch and working size."""
+    scale = (settings.batch_size / 6) * (settings.resolution / 256) ** 2
+    seconds = {kind: cost * scale for kind, cost in FALLBACK_COSTS.items()}
+    seconds["align"] = FALLBACK_COSTS["align"] * frame_count * (settings.resolution / 256) ** 2
+    return StepCosts(seconds, _after_stages(seconds, settings, frame_count), calibrated=False)
+
+
+def _after_stages(seconds, settings, frame_count):
+    return AFTER_STAGES_FACTOR * seconds["appearance"] * frame_count / settings.batch_size
+
+
+def calibrate(problem, stages, kinds) -> StepCosts:
+    """Times WARM_UP_STEPS + TIMED_STEPS throwaway steps of each kind in `kinds` on the problem
+    (the StageRun of the fit, on a scratch state and random generator); the avatar's parameters
+    come back bit-for-bit and the fit's generator is not touched."""
+    from .stage_run import StageRun   # stage_run imports this module's users; keep the import local
+
+    start = time.perf_counter()
+    saved = copy.deepcopy(problem.avatar.state_dict())
+    by_name = {stage.name: stage for stage in stages}
+    seconds = {}
+    try:
+        for kind in kinds:
+            stage = by_name[kind.split(" ")[0]]
+            state = FitState.fresh(len(stages), "on" if kind.endswith(" shadows") else "off")
+            run = StageRun(problem, stage, state, torch.Generator().manual_seed(0))
+            if not run.has_work:
+                continue
+            durations = []
+            for index in range(WARM_UP_STEPS + TIMED_STEPS):
+                begin = time.perf_counter()
+                run.step()
+                if index >= WARM_UP_STEPS:
+                    durations.append(time.perf_counter() - begin)
+            seconds[kind] = statistics.fmean(durations)
+    finally:
+        problem.avatar.load_state_dict(saved)
+        for parameter in problem.avatar.parameters():
+            parameter.grad = None
+    fallback = fallback_costs(problem.settings, len(problem.frames)).seconds
+    for kind, cost in fallback.items():   # kinds not timed (nothing to move) cost what the model says
+        seconds.setdefault(kind, cost)
+    return StepCosts(seconds, _after_stages(seconds, problem.settings, len(problem.frames)), calibrated=True,
+                     calibration_seconds=time.perf_counter() - start)
+
+
+class TimeLeft:
+    """The time left of a fit as it runs: `step(kind, seconds)` after each step, then
+    `seconds_left(plan)` for the plan still to take (remaining_plan)."""
+
+    def __init__(self, costs: StepCosts):
+        self.costs = costs
+        self.recent = collections.defaultdict(lambda: collections.deque(maxlen=RECENT_STEPS))
+        self.observed_seconds = 0.0
+        self.predicted_seconds = 0.0
+
+    def step(self, kind, seconds):
+        self.recent[kind].append(seconds)
+        forget = math.exp(-seconds / SPEED_MEMORY_SECONDS)
+        self.observed_seconds = self.observed_seconds * forget + seconds
+        self.predicted_seconds = self.predicted_seconds * forget + self.costs.seconds[kind]
+
+    @property
+    def speed(self) -> float:
+        """Observed over calibrated time, recent steps weighing most (1: as calibrated)."""
+        return (self.observed_seconds + SPEED_PRIOR_SECONDS) / (self.predicted_seconds + SPEED_PRIOR_SECONDS)
+
+    def rate(self, kind) -> float:
+        recent = self.recent[kind]
+        if len(recent) >= OWN_RATE_AFTER:
+            return statistics.median(recent)
+        return self.costs.seconds[kind] * self.speed
+
+    def seconds_left(self, plan) -> float:
+        return sum(self.rate(kind) * steps for kind, steps in plan) + self.costs.after_stages * self.speed

@@ -1,0 +1,115 @@
+"""The fit's time estimate (pipeline/fit/estimate.py): the plan of steps still to take, the time
+left as a fit runs against a simulated truth, and the calibration's throwaway steps, which must
+leave the avatar exactly as it was."""
+import numpy as np
+import pytest
+import torch
+
+from pipeline.evaluate.exact_clips import write_clip
+from pipeline.fit.checkpoint import FitState
+from pipeline.fit.estimate import StepCosts, TimeLeft, calibrate, remaining_plan, step_kind
+from pipeline.fit.problem import build_problem
+from pipeline.fit.settings import settings_for
+from pipeline.init import initialise_sequence
+from synth.motions import OPEN
+
+STAGES = settings_for("fast", 30).stages()     # align 100, geometry 200, joint 300, appearance 200
+
+
+def test_the_plan_splits_an_undecided_auto_shadowing_after_the_decision():
+    state = FitState.fresh(len(STAGES), "auto")
+    plan = dict(remaining_plan(STAGES, state, "auto", lambda stage: True))
+    assert plan == {"align": 100, "geometry": 200, "geometry+appearance": 150 + 75, "geometry+appearance shadows": 75,
+                    "appearance": 100, "appearance shadows": 100}
+    state.stage, state.step = 2, 200                  # past the decision's step, not yet decided
+    plan = dict(remaining_plan(STAGES, state, "auto", lambda stage: True))
+    assert plan["geometry+appearance"] == 50 and plan["geometry+appearance shadows"] == 50 and "geometry" not in plan
+    state.shadows.decided, state.shadows.on = True, True
+    assert remaining_plan(STAGES, state, "auto", lambda stage: True) == [("geometry+appearance shadows", 100),
+                                                                         ("appearance shadows", 200)]
+    frozen_appearance = remaining_plan(STAGES, FitState.fresh(len(STAGES), "off"), "off",
+                                       lambda stage: stage.name != "appearance")
+    assert [kind for kind, _ in frozen_appearance] == ["align", "geometry", "geometry+appearance"]
+
+
+def simulated_fit(costs, slowdown, slowdown_from, stages=STAGES):
+    """(elapsed, estimated seconds left, true seconds left) after every step of a fit whose steps
+    take `slowdown[kind]` times their calibrated cost, once `slowdown_from` seconds have passed
+    (a second process starting), and the same per-step jitter the median must absorb."""
+    state = FitState.fresh(len(stages), "off")
+    timer = TimeLeft(costs)
+    jitter = np.random.default_rng(0)
+    durations, kinds = [], []
+    elapsed = 0.0
+    for index, stage in enumerate(stages):
+        for _ in range(stage.steps):
+            kind = step_kind(stage, False)
+            factor = slowdown[kind] if elapsed >= slowdown_from else 1.0
+            durations.append(costs.seconds[kind] * factor * jitter.uniform(0.9, 1.1))
+            kinds.append(kind)
+            elapsed += durations[-1]
+    after = costs.after_stages * slowdown["appearance"]
+    total = elapsed + after
+    trace, elapsed, step = [], 0.0, 0
+    for index, stage in enumerate(stages):
+        state.stage, state.step = index, 0
+        for _ in range(stage.steps):
+            timer.step(kinds[step], durations[step])
+            elapsed += durations[step]
+            step += 1
+            state.step += 1
+            left = timer.seconds_left(remaining_plan(stages, state, "off", lambda stage: True))
+            trace.append((elapsed, left, total - elapsed))
+    return trace
+
+
+COSTS = StepCosts({"align": 0.4, "geometry": 0.5, "geometry+appearance": 1.2, "appearance": 0.9}, after_stages=30.0,
+                  calibrated=True)
+
+
+@pytest.mark.parametrize("slowdown, slowdown_from", [
+    ({"align": 1.0, "geometry": 1.0, "geometry+appearance": 1.0, "appearance": 1.0}, 0.0),   # as calibrated
+    ({"align": 1.6, "geometry": 1.5, "geometry+appearance": 1.7, "appearance": 1.6}, 0.0),   # a busy machine
+    ({"align": 1.8, "geometry": 1.8, "geometry+appearance": 1.8, "appearance": 1.8}, 120.0),  # busy from 2 min on
+])
+def test_time_left_stays_within_a_quarter_of_the_truth_after_the_first_minute(slowdown, slowdown_from):
+    """...or, when the machine's speed changes (no estimate sees that coming), within a minute
+    and a half of the change."""
+    trace = simulated_fit(COSTS, slowdown, slowdown_from)
+    settled = max(60, slowdown_from + 90 if slowdown_from else 0)
+    errors = [abs(left - truth) / truth for elapsed, left, truth in trace if elapsed >= settled and truth > 30]
+    assert max(errors) < 0.25
+    if set(slowdown.values()) == {1.0}:     # the machine as calibrated: right from the first step
+        assert abs(trace[0][1] - trace[0][2]) / trace[0][2] < 0.05
+
+
+def test_a_uniform_rate_would_not_be_honest():
+    """The old estimate (the first stage's rate for every step) is far off on the same fit: the
+    test above measures something."""
+    trace = simulated_fit(COSTS, dict.fromkeys(COSTS.seconds, 1.0), 0.0)
+    elapsed, _, truth = trace[20]
+    uniform = elapsed / 21 * (len(trace) - 21)
+    assert abs(uniform - truth) / truth > 0.4
+
+
+@pytest.fixture(scope="module")
+def problem(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("estimate") / "clip"
+    write_clip(folder, OPEN, frames=4, size=96, turn_degrees=25)
+    initialise_sequence(folder, "gt-noise", log=lambda *a: None)
+    return build_problem(folder, settings_for("fast", 4, resolution=96, texture_size=64), np.arange(4), "cpu")
+
+
+def test_calibration_times_each_kind_and_leaves_the_avatar_bit_for_bit(problem):
+    before = {name: value.clone() for name, value in problem.avatar.state_dict().items()}
+    stages = problem.settings.stages()
+    kinds = ["align", "geometry", "geometry+appearance", "geometry+appearance shadows", "appearance shadows"]
+    costs = calibrate(problem, stages, kinds)
+    assert costs.calibrated and costs.calibration_seconds > 0
+    assert all(costs.seconds[kind] > 0 for kind in kinds)
+    # shading costs: a joint step renders colour on top of the geometry step's silhouette
+    assert costs.seconds["geometry+appearance"] > costs.seconds["geometry"]
+    assert costs.after_stages > 0
+    for name, value in problem.avatar.state_dict().items():
+        assert torch.equal(value, before[name]), name
+    assert all(parameter.grad is None for parameter in problem.avatar.parameters())
