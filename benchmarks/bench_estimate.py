@@ -1,9 +1,9 @@
 """Benchmark: the fit's printed time estimate and its time left against the truth.
 
     .venv/bin/python benchmarks/bench_estimate.py SEQ [--presets fast,full] [--work DIR]
-                     [--max-steps N] [--threads N]
+                     [--max-frames N] [--budget TIME] [--threads N]
 
-Runs `harp fit SEQ --preset P` for each preset (or reads a finished fit already in DIR/P) and
+Fits SEQ with each preset as `harp fit` does (or reads a finished fit already in DIR/P) and
 prints, from its report.json: the estimate printed before the stages, the true time from then
 to the end of the outputs, their ratio, and the worst error of the progress bar's time left
 after the first minute (the speed issue's targets: within 25% both). The traces go to
@@ -14,22 +14,20 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
 SETTLED_SECONDS = 60.0
 
 
-def fitted(sequence, out, preset, max_steps, threads):
+def fitted(sequence, out, preset, **options):
     """report.json of a fit (run unless it has finished before)."""
     if not (out / "report.json").is_file():
-        argv = [sys.executable, "-m", "pipeline.cli", "fit", str(sequence), "--out", str(out), "--preset", preset,
-                "--progress", "none"]
-        argv += ["--max-steps", str(max_steps)] if max_steps else []
-        argv += ["--threads", str(threads)] if threads else []
-        subprocess.run(argv, cwd=ROOT, check=True)
+        from pipeline.fit import fit
+
+        fit(sequence, out, preset=preset, progress="none", **options)
     return json.loads((out / "report.json").read_text())
 
 
@@ -70,15 +68,21 @@ def main():
     parser.add_argument("sequence")
     parser.add_argument("--presets", default="fast,full")
     parser.add_argument("--work", default="bench_estimate_work")
-    parser.add_argument("--max-steps", type=int)
+    parser.add_argument("--max-frames", type=int, help="fit at most this many frames (spread evenly)")
+    parser.add_argument("--budget", help="as harp fit --budget")
     parser.add_argument("--threads", type=int)
     args = parser.parse_args()
+    from pipeline.threads import configure_threads
+
+    configure_threads(args.threads)     # before torch is imported
+    from pipeline.fit.budget import parse_budget
+
+    options = {"max_frames": args.max_frames, "budget_seconds": parse_budget(args.budget) if args.budget else None}
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     results = {}
     for preset in args.presets.split(","):
-        results[preset] = figures(fitted(Path(args.sequence).resolve(), work / preset, preset, args.max_steps,
-                                         args.threads))
+        results[preset] = figures(fitted(Path(args.sequence).resolve(), work / preset, preset, **options))
         shown = {k: v for k, v in results[preset].items() if k != "trace"}
         print(json.dumps({"preset": preset, **shown}), flush=True)
     (work / "bench_estimate.json").write_text(json.dumps(results, indent=1))

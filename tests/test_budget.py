@@ -58,17 +58,56 @@ def tiny_clip(tmp_path_factory):
     return folder
 
 
+class FakeEstimate:
+    """What BudgetKeeper reads of a fit's estimate, with costs known: every step costs COST."""
+
+    def __init__(self, settings, state):
+        from pipeline.fit.estimate import StepCosts, TimeLeft, remaining_plan
+
+        self.settings, self.state = settings, state
+        self.costs = StepCosts(dict(COST), after_stages=10.0, calibrated=True)
+        self.time_left = TimeLeft(self.costs)
+        self.active = lambda stage: True
+        self.plan = lambda: remaining_plan(settings.stages(), state, "off", self.active)
+
+
+def test_the_keeper_replans_with_the_rates_the_fit_runs_at():
+    from types import SimpleNamespace
+
+    from pipeline.fit.budget import AIM, BudgetKeeper
+    from pipeline.fit.checkpoint import FitState
+    from pipeline.fit.settings import settings_for
+
+    settings = settings_for("fast", 30, shadows="off", budget_seconds=610.0)
+    state = FitState.fresh(4, "off")
+    estimate = FakeEstimate(settings, state)
+    keeper = BudgetKeeper(SimpleNamespace(settings=settings), state, estimate, started=0.0)
+    keeper.replan(now=0.0)     # 690 s planned, 0.97 * 610 - 10 available: the appearance stage cut
+    assert settings.align_steps == 100 and settings.steps[:2] == (200, 300) and settings.steps[2] < 200
+    assert seconds({"align": 100, "geometry": 200, "geometry+appearance": 300, "appearance": settings.steps[2]}) \
+        <= AIM * 610 - 10
+    # the alignment done (50 s), the geometry stage half-way, and the machine running twice as slow
+    state.stage, state.step = 1, 100
+    for _ in range(20):
+        estimate.time_left.step("geometry", 2 * COST["geometry"])
+    keeper.replan(now=150.0)
+    geometry, joint, appearance = settings.steps
+    assert settings.align_steps == 100                    # it ended: it keeps its steps
+    assert geometry == 100 and joint < 300 and joint / 300 > appearance / 200   # stopped where it stands
+    assert keeper.estimate.time_left.seconds_left(estimate.plan()) < 1.1 * (610 - 150)
+
+
 def test_a_budgeted_fit_cuts_its_schedule_and_resumes_on_its_plan(tiny_clip, tmp_path):
-    """A budget far below the schedule's time: the steps are cut (the joint stage least) and the
-    fit ends; resumed without --budget it keeps the plan it saved (no "other settings" error)."""
+    """A budget below anything the fit could do: every stage cut, down to a step if need be,
+    and the fit ends; resumed without --budget it keeps the plan it saved (no "other settings"
+    error)."""
     options = dict(progress="none", texture_size=64, batch_size=2, resolution=96, steps=(40, 60, 40))
     out = tmp_path / "budgeted"
-    report = fitting.fit(tiny_clip, out, budget_seconds=12, **options)
+    report = fitting.fit(tiny_clip, out, budget_seconds=2, **options)
     saved = load_checkpoint(out / CHECKPOINT_FILE, "cpu").settings
-    geometry, joint, appearance = saved.steps
-    assert saved.budget_seconds == 12 and saved.steps != (40, 60, 40)
-    assert joint / 60 >= max(geometry / 40, appearance / 40)
-    assert report["estimate"]["calibrated"] and report["estimate"]["budget_seconds"] == 12
+    assert saved.budget_seconds == 2 and saved.align_steps < 100
+    assert all(1 <= cut < planned for cut, planned in zip(saved.steps, (40, 60, 40)))
+    assert report["estimate"]["calibrated"] and report["estimate"]["budget_seconds"] == 2
     again = fitting.fit(tiny_clip, out, resume=True, **options)
     assert load_checkpoint(out / CHECKPOINT_FILE, "cpu").settings.steps == saved.steps
     assert again["metrics"] == report["metrics"]

@@ -62,11 +62,12 @@ class BudgetKeeper:
     REPLAN_STEPS steps rewrites the settings' steps (and the running stage's) to what fits in
     the time left, costed by `estimate` (fitting._Estimate: the plan and the measured rates).
     `started` is the fit's perf_counter start; `spent_before` the fitting time of earlier
-    sessions of a resumed fit."""
+    sessions of a resumed fit. Time the observers take (the anytime curve's measuring) is not
+    spent from the budget, as it is not fitting time on the curves."""
 
     def __init__(self, problem, state, estimate, started, spent_before=0.0):
         self.problem, self.state, self.estimate = problem, state, estimate
-        self.started, self.spent_before = started, spent_before
+        self.started, self.spent_before, self.measured_before = started, spent_before, state.measure_seconds
         self.planned = {stage.name: stage.steps for stage in problem.settings.stages() if estimate.active(stage)}
 
     @property
@@ -74,14 +75,18 @@ class BudgetKeeper:
         return self.problem.settings.budget_seconds
 
     def spent(self, now):
-        return self.spent_before + now - self.started
+        return self.spent_before + now - self.started - (self.state.measure_seconds - self.measured_before)
 
     def replan(self, now, run=None):
         """New step counts from the time left at `now`; returns the steps still to take."""
         settings, state, time_left = self.problem.settings, self.state, self.estimate.time_left
         stages = settings.stages()
-        done = {stage.name: (stage.steps if index < state.stage else state.step if index == state.stage else 0)
-                for index, stage in enumerate(stages)}
+        planned, done = {}, {}
+        for index, stage in enumerate(stages):
+            if stage.name in self.planned:
+                # a stage that has ended keeps the steps it took
+                planned[stage.name] = stage.steps if index < state.stage else self.planned[stage.name]
+                done[stage.name] = stage.steps if index < state.stage else state.step if index == state.stage else 0
         rates = dict.fromkeys(self.planned, 0.0)
         counts = dict.fromkeys(self.planned, 0.0)
         for kind, steps in self.estimate.plan():
@@ -91,7 +96,7 @@ class BudgetKeeper:
         rates = {name: rates[name] / counts[name] if counts[name] else
                  time_left.rate(name) for name in rates}
         available = AIM * (self.seconds - self.spent(now)) - self.estimate.costs.after_stages * time_left.speed
-        steps = budget_steps(self.planned, done, rates, available)
+        steps = budget_steps(planned, done, rates, available)
         settings.align_steps = steps.get("align", settings.align_steps)
         settings.steps = tuple(steps.get(stage.name, stage.steps) for stage in stages[1:])
         if run is not None:

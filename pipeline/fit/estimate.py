@@ -27,8 +27,9 @@ import torch
 
 from .checkpoint import FitState
 from .settings import Stage
+from .stage_run import StageRun
 
-WARM_UP_STEPS = 1            # untimed steps before the first timed one (allocations, thread start)
+WARM_UP_STEPS = 1            # untimed steps on each mesh's first kind (allocations, threads starting)
 TIMED_STEPS = 2              # timed steps per kind of step
 CALIBRATE_MIN_STEPS = 150    # fits with fewer steps left take FALLBACK_COSTS instead of calibrating
 RECENT_STEPS = 15            # a stage's rate: the median of this many of its latest steps...
@@ -96,15 +97,14 @@ def _after_stages(seconds, settings, frame_count):
 
 
 def calibrate(problem, stages, kinds) -> StepCosts:
-    """Times WARM_UP_STEPS + TIMED_STEPS throwaway steps of each kind in `kinds` on the problem
-    (the StageRun of the fit, on a scratch state and random generator); the avatar's parameters
-    come back bit-for-bit and the fit's generator is not touched."""
-    from .stage_run import StageRun   # stage_run imports this module's users; keep the import local
-
+    """Times TIMED_STEPS throwaway steps of each kind in `kinds` on the problem (the StageRun of
+    the fit, on a scratch state and random generator), after WARM_UP_STEPS on each mesh (the
+    alignment's coarse one, the subdivided one); the avatar's parameters come back bit-for-bit
+    and the fit's generator is not touched."""
     start = time.perf_counter()
     saved = copy.deepcopy(problem.avatar.state_dict())
     by_name = {stage.name: stage for stage in stages}
-    seconds = {}
+    seconds, warmed = {}, set()
     try:
         for kind in kinds:
             stage = by_name[kind.split(" ")[0]]
@@ -113,10 +113,12 @@ def calibrate(problem, stages, kinds) -> StepCosts:
             if not run.has_work:
                 continue
             durations = []
-            for index in range(WARM_UP_STEPS + TIMED_STEPS):
+            warm_up = 0 if stage.coarse in warmed else WARM_UP_STEPS
+            warmed.add(stage.coarse)
+            for index in range(warm_up + TIMED_STEPS):
                 begin = time.perf_counter()
                 run.step()
-                if index >= WARM_UP_STEPS:
+                if index >= warm_up:
                     durations.append(time.perf_counter() - begin)
             seconds[kind] = statistics.fmean(durations)
     finally:
