@@ -29,14 +29,14 @@ from .checkpoint import FitState
 from .settings import Stage
 from .stage_run import StageRun
 
-WARM_UP_STEPS = 1            # untimed steps on each mesh's first kind (allocations, threads starting)
+WARM_UP_STEPS = 1            # untimed steps of each kind first (a new optimiser's state, allocations)
 TIMED_STEPS = 2              # timed steps per kind of step
 CALIBRATE_MIN_STEPS = 150    # fits with fewer steps left take FALLBACK_COSTS instead of calibrating
 RECENT_STEPS = 15            # a stage's rate: the median of this many of its latest steps...
 OWN_RATE_AFTER = 4           # ...once it has taken this many
 SPEED_PRIOR_SECONDS = 20.0   # the machine's observed speed counts once this much has been timed...
 SPEED_MEMORY_SECONDS = 60.0  # ...and follows a change (another process starting) over about this long
-AFTER_STAGES_FACTOR = 3.0    # albedo solve + fill + outputs: this many appearance steps per batch of frames
+AFTER_STAGES_FACTOR = 6.0    # albedo solve + fill + outputs: this many appearance steps per batch of frames
 # seconds per step at 256 px and batches of 6 (the alignment: per frame), measured on a 2-core CPU
 FALLBACK_COSTS = {"align": 0.03, "geometry": 0.5, "geometry+appearance": 1.1, "geometry+appearance shadows": 1.4,
                   "appearance": 0.8, "appearance shadows": 1.1}
@@ -98,13 +98,14 @@ def _after_stages(seconds, settings, frame_count):
 
 def calibrate(problem, stages, kinds) -> StepCosts:
     """Times TIMED_STEPS throwaway steps of each kind in `kinds` on the problem (the StageRun of
-    the fit, on a scratch state and random generator), after WARM_UP_STEPS on each mesh (the
-    alignment's coarse one, the subdivided one); the avatar's parameters come back bit-for-bit
-    and the fit's generator is not touched."""
+    the fit, on a scratch state and random generator), each after WARM_UP_STEPS (a kind's first
+    step runs slower: a new optimiser's state, new buffer sizes; one warm-up shared by all kinds
+    left the measured costs up to 30% high on a fast fit); the
+    avatar's parameters come back bit-for-bit and the fit's generator is not touched."""
     start = time.perf_counter()
     saved = copy.deepcopy(problem.avatar.state_dict())
     by_name = {stage.name: stage for stage in stages}
-    seconds, warmed = {}, set()
+    seconds = {}
     try:
         for kind in kinds:
             stage = by_name[kind.split(" ")[0]]
@@ -113,12 +114,10 @@ def calibrate(problem, stages, kinds) -> StepCosts:
             if not run.has_work:
                 continue
             durations = []
-            warm_up = 0 if stage.coarse in warmed else WARM_UP_STEPS
-            warmed.add(stage.coarse)
-            for index in range(warm_up + TIMED_STEPS):
+            for index in range(WARM_UP_STEPS + TIMED_STEPS):
                 begin = time.perf_counter()
                 run.step()
-                if index >= warm_up:
+                if index >= WARM_UP_STEPS:
                     durations.append(time.perf_counter() - begin)
             seconds[kind] = statistics.fmean(durations)
     finally:
