@@ -36,7 +36,8 @@ RECENT_STEPS = 15            # a stage's rate: the median of this many of its la
 OWN_RATE_AFTER = 4           # ...once it has taken this many
 SPEED_PRIOR_SECONDS = 20.0   # the machine's observed speed counts once this much has been timed...
 SPEED_MEMORY_SECONDS = 60.0  # ...and follows a change (another process starting) over about this long
-AFTER_STAGES_FACTOR = 6.0    # albedo solve + fill + outputs: this many appearance steps per batch of frames
+AFTER_STAGES_FACTOR = 8.0    # albedo solve + fill + outputs: this many appearance steps per batch of frames
+#                              (measured: 5 on a fast fit of 30 frames, 10 on a full one)
 # seconds per step at 256 px and batches of 6 (the alignment: per frame), measured on a 2-core CPU
 FALLBACK_COSTS = {"align": 0.03, "geometry": 0.5, "geometry+appearance": 1.1, "geometry+appearance shadows": 1.4,
                   "appearance": 0.8, "appearance shadows": 1.1}

@@ -149,9 +149,13 @@ def _opening_line(problem, preset, estimate):
             f"{known}, perceptual term {problem.perceptual_name}, exposure gains {problem.exposure_note}"
             + (f"; {problem.mask_cut_frames} masks end mid-forearm (a sleeve?): the silhouette beyond that line is "
                "not compared" if problem.mask_cut_frames else "")
-            + f"; expected time {estimate.expected_seconds / 60:.1f} min on {problem.device} "
+            + f"; expected time {_duration(estimate.expected_seconds)} on {problem.device} "
             + (f"(step costs measured in {estimate.costs.calibration_seconds:.0f} s)" if estimate.costs.calibrated
                else "(a small fit: step costs not measured)"))
+
+
+def _duration(seconds):
+    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.1f} min"
 
 
 def _decide_shadows(problem, run, reporter):
