@@ -33,7 +33,7 @@ def fitted(sequence, out, preset, **options):
 
 
 def figures(report):
-    """The estimate against the truth, from a report's "estimate" (fitting._Estimate.report)."""
+    """The estimate against the truth, from a report's "estimate" (estimate.FitEstimate.report)."""
     estimate = report["estimate"]
     true_seconds = estimate["seconds_before_outputs"] + report["output_seconds"]
     trace = [(elapsed, left, true_seconds - elapsed) for elapsed, left in estimate["time_left"]]

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from synth_clips import ROOT, render_tiny_clip
-from pipeline.fit import fitting, stage_run
+from pipeline.fit import estimate, fitting, stage_run
 from pipeline.fit.checkpoint import CHECKPOINT_FILE, load_checkpoint
 from pipeline.formats import avatar_folder as av
 from pipeline.formats import hand_model_file as fmt
@@ -159,7 +159,7 @@ def test_measuring_the_step_costs_changes_nothing_in_the_fit(tiny_clip, tmp_path
     fit that measures its step costs ends bit-for-bit where one that does not ends."""
     options = dict(progress="none", max_steps=3, texture_size=64, batch_size=2, resolution=96)
     plain = fitting.fit(tiny_clip, tmp_path / "plain", **options)
-    monkeypatch.setattr(fitting, "CALIBRATE_MIN_STEPS", 0)
+    monkeypatch.setattr(estimate, "CALIBRATE_MIN_STEPS", 0)
     measured = fitting.fit(tiny_clip, tmp_path / "measured", **options)
     assert not plain["estimate"]["calibrated"] and measured["estimate"]["calibrated"]
     assert measured["estimate"]["calibration_seconds"] > 0 and measured["estimate"]["expected_seconds"] > 0

@@ -60,7 +60,7 @@ def budget_steps(planned, done, seconds_per_step, seconds) -> dict:
 class BudgetKeeper:
     """Holds a fit to problem.settings.budget_seconds: `replan()` at the start and every
     REPLAN_STEPS steps rewrites the settings' steps (and the running stage's) to what fits in
-    the time left, costed by `estimate` (fitting._Estimate: the plan and the measured rates).
+    the time left, costed by `estimate` (estimate.FitEstimate: the plan and the measured rates).
     `started` is the fit's perf_counter start; `spent_before` the fitting time of earlier
     sessions of a resumed fit. Time the observers take (the anytime curve's measuring) is not
     spent from the budget, as it is not fitting time on the curves."""

@@ -21,14 +21,13 @@ from ..formats.sequence_folder import validate_sequence_folder
 from .albedo_solve import solve_avatar_albedo
 from .avatar import APPEARANCE, SHAPE
 from .checkpoint import CHECKPOINT_FILE, CHECKPOINT_VERSION, Checkpoint, FitState, load_checkpoint, save_checkpoint
-from .budget import REPLAN_STEPS, BudgetKeeper
-from .estimate import CALIBRATE_MIN_STEPS, TimeLeft, calibrate, fallback_costs, remaining_plan, step_kind
+from .estimate import FitEstimate, step_kind
 from .frames import held_out_frames, select_frames
 from .outputs import write_outputs
 from .problem import FitError, FitProblem, build_problem
 from .progress import Progress
 from .settings import settings_for
-from .stage_run import StageRun, parameter_groups
+from .stage_run import StageRun
 from .texture_fill import fill_avatar_albedo
 
 SHADOW_AMBIENT_THRESHOLD = 0.75   # a fitted ambient ratio below this means a dominant light
@@ -70,7 +69,7 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
     out.mkdir(parents=True, exist_ok=True)
     saver = _CheckpointSaver(out / CHECKPOINT_FILE, problem)
     state, generator, optimiser_state = saver.resume() if resume else saver.fresh(len(stages))
-    estimate = _Estimate(problem, state, started)
+    estimate = FitEstimate(problem, state, started)
     clock = _FitClock(state)      # after the estimate: measuring the step costs is no stage's time
     with Progress(progress, estimate.steps_left) as reporter, _interrupt_flag() as interrupted:
         reporter.log(_opening_line(problem, preset, estimate))
@@ -167,63 +166,6 @@ def _decide_shadows(problem, run, reporter):
     ambient = problem.avatar.ambient.item()
     decision.on, decision.decided, decision.ambient_at_decision = ambient < SHADOW_AMBIENT_THRESHOLD, True, ambient
     reporter.log(f"shadows auto: fitted ambient ratio {ambient:.2f} -> self-shadowing {'on' if decision.on else 'off'}")
-
-
-class _Estimate:
-    """The fit's time: step costs measured before the stages (estimate.calibrate; a small fit
-    takes the fallback model), the time left after each step, a trace of it for the report
-    (every TRACE_SECONDS), so that the estimate can be checked against the truth, and, with a
-    budget (settings.budget_seconds), the steps re-planned to fit it (budget.BudgetKeeper)."""
-
-    TRACE_SECONDS = 10.0
-
-    def __init__(self, problem, state, started):
-        self.problem, self.state = problem, state
-        stages = problem.settings.stages()
-        active = {stage.name: stage.steps > 0 and bool(parameter_groups(problem, stage)) for stage in stages}
-        self.active = lambda stage: active[stage.name]
-        plan = self.plan()
-        budget = problem.settings.budget_seconds
-        if budget is not None or sum(steps for _, steps in plan) >= CALIBRATE_MIN_STEPS:
-            self.costs = calibrate(problem, stages, sorted({kind for kind, _ in plan}))
-        else:
-            self.costs = fallback_costs(problem.settings, len(problem.frames))
-        self.time_left = TimeLeft(self.costs)
-        self.budget = None if budget is None else BudgetKeeper(problem, state, self, started, state.fit_seconds)
-        if self.budget is not None:
-            self.budget.replan(time.perf_counter())
-        plan = self.plan()
-        self.steps_left = int(round(sum(steps for _, steps in plan)))
-        self.expected_seconds = self.costs.plan_seconds(plan)
-        self.start = self.last_step = time.perf_counter()
-        self.trace = [[0.0, round(self.expected_seconds, 1)]]
-
-    def plan(self):
-        return remaining_plan(self.problem.settings.stages(), self.state, self.problem.settings.shadows, self.active)
-
-    def step(self, kind, run):
-        """(seconds left, steps left) after a step of `kind` (timed from the previous call) in
-        `run`, the StageRun under way (a budget may change its steps)."""
-        now = time.perf_counter()
-        self.time_left.step(kind, now - self.last_step)
-        self.last_step = now
-        if self.budget is not None and self.state.step % REPLAN_STEPS == 0:
-            self.budget.replan(now, run)
-        plan = self.plan()
-        left = self.time_left.seconds_left(plan)
-        if now - self.start >= self.trace[-1][0] + self.TRACE_SECONDS:
-            self.trace.append([round(now - self.start, 1), round(left, 1)])
-        return left, int(round(sum(steps for _, steps in plan)))
-
-    def report(self):
-        """This session's estimate (a resumed fit estimates what it has left), for report.json;
-        its `seconds_before_outputs` plus the report's output_seconds is the true time it estimated."""
-        return {"expected_seconds": round(self.expected_seconds, 1), "calibrated": self.costs.calibrated,
-                "calibration_seconds": round(self.costs.calibration_seconds, 1),
-                "step_seconds": {kind: round(cost, 4) for kind, cost in self.costs.seconds.items()},
-                "after_stages_seconds": round(self.costs.after_stages, 1),
-                "budget_seconds": self.problem.settings.budget_seconds,
-                "seconds_before_outputs": round(time.perf_counter() - self.start, 1), "time_left": self.trace}
 
 
 class _CheckpointSaver:

@@ -81,7 +81,7 @@ def metrics_line(scores):
 def write_outputs(out, problem, state, held_out=(), estimate=None):
     """The avatar folder, report.json, fit_grid.png and overlay.mp4 of a finished fit; returns
     the report. `held_out` are the sequence frames left out for evaluation; `estimate` is the
-    fit's time estimate and its trace (fitting._Estimate.report)."""
+    fit's time estimate and its trace (estimate.FitEstimate.report)."""
     out = Path(out)
     start = time.time()
     avatar, clip, settings = problem.avatar, problem.clip, problem.settings
