@@ -3,7 +3,10 @@
     .venv/bin/python benchmarks/bench_renderer.py [--frames 8] [--sizes 256 448] [--profile]
 
 Three workloads: silhouette only; textured and shaded with a normal map; the same with
-shadows. --profile adds a breakdown by stage and the top operators (torch.profiler).
+shadows; each on the reference primitives (`render(..., fused=False)`) and the fused path
+(the default), timed in alternating rounds in one run so that both see the same machine, with
+the median of the rounds. --profile adds a breakdown by stage and the top operators
+(torch.profiler).
 """
 from __future__ import annotations
 
@@ -11,7 +14,7 @@ import argparse
 
 import numpy as np
 import torch
-from timing import seconds_per_call
+from timing import alternating_medians, seconds_per_call
 
 from pipeline.handmodel.lbs import HandModel
 from pipeline.handmodel.poses import NAMED_POSES
@@ -49,13 +52,13 @@ def parameters(device):
     return albedo, normal_map, light, ambient
 
 
-def run(points, mesh, size, workload, params):
+def run(points, mesh, size, workload, params, fused=True):
     albedo, normal_map, light_position, ambient = params
     vertices = points.clone().requires_grad_(True)
     K = torch.tensor([[size * 2.0, 0, size / 2], [0, size * 2.0, size / 2], [0, 0, 1]], device=points.device)
     images = render(vertices, mesh, K, size, size, outputs=workload["outputs"],
                     appearance=Appearance(albedo, normal_map),
-                    light=Light(light_position, ambient, shadows=workload["shadows"]))
+                    light=Light(light_position, ambient, shadows=workload["shadows"]), fused=fused)
     loss = sum(image.mean() for image in images.values())
     loss.backward()
 
@@ -82,7 +85,7 @@ def main():
     parser.add_argument("--frames", type=int, default=8)
     parser.add_argument("--sizes", type=int, nargs="+", default=[256, 448])
     parser.add_argument("--mode", choices=("hand", "arm"), default="hand")
-    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--repeats", type=int, default=7, help="alternating rounds of each path")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     parser.add_argument("--profile", action="store_true")
     args = parser.parse_args()
@@ -90,11 +93,17 @@ def main():
     params = parameters(args.device)
     print(f"{args.mode} model subdivided: {model.data.num_vertices} vertices, {len(model.data.faces)} faces; "
           f"{args.frames} frames; {args.device}; torch {torch.__version__}, {torch.get_num_threads()} threads")
-    print(f"{'workload':<22}" + "".join(f"{f'{s}x{s} ms/frame':>18}" for s in args.sizes))
+    print(f"forward+backward, ms per frame (median of {args.repeats} alternating rounds): reference / fused = speed-up")
+    print(f"{'workload':<22}" + "".join(f"{f'{s}x{s}':>30}" for s in args.sizes))
     for name, workload in WORKLOADS.items():
-        row = [1000 * seconds_per_call(lambda: run(points, mesh, s, workload, params), args.repeats) / args.frames
-               for s in args.sizes]
-        print(f"{name:<22}" + "".join(f"{value:>18.1f}" for value in row))
+        cells = []
+        for size in args.sizes:
+            reference, fused = alternating_medians(
+                [lambda: run(points, mesh, size, workload, params, fused=False),
+                 lambda: run(points, mesh, size, workload, params, fused=True)], args.repeats)
+            cells.append(f"{1000 * reference / args.frames:.1f} / {1000 * fused / args.frames:.1f} = "
+                         f"{reference / fused:.2f}x")
+        print(f"{name:<22}" + "".join(f"{cell:>30}" for cell in cells))
     if args.profile:
         size = args.sizes[0]
         print(f"\nsilhouette stages at {size}x{size} (forward, ms/frame):")

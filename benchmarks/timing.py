@@ -1,6 +1,7 @@
 """Wall-clock timing shared by the benchmark scripts."""
 from __future__ import annotations
 
+import statistics
 import time
 
 import torch
@@ -17,3 +18,20 @@ def seconds_per_call(function, repeats):
     if torch.cuda.is_available():
         torch.cuda.synchronize()
     return (time.perf_counter() - start) / repeats
+
+
+def alternating_medians(functions, rounds):
+    """Median wall time of each of `functions` over `rounds` rounds that call them in turn (after
+    one warm-up round): paths compared this way see the same machine, busy or not."""
+    times = [[] for _ in functions]
+    for round_index in range(rounds + 1):
+        for function, record in zip(functions, times):
+            if torch.cuda.is_available():
+                torch.cuda.synchronize()
+            start = time.perf_counter()
+            function()
+            if torch.cuda.is_available():
+                torch.cuda.synchronize()
+            if round_index:
+                record.append(time.perf_counter() - start)
+    return [statistics.median(record) for record in times]

@@ -35,7 +35,8 @@ CASES = {
 
 @pytest.mark.parametrize("case", list(CASES))
 @pytest.mark.parametrize("shadows", [False, True])
-def test_finite_images_and_gradients(case, shadows):
+@pytest.mark.parametrize("fused", [True, False])
+def test_finite_images_and_gradients(case, shadows, fused):
     centre, extra, radius = CASES[case]
     points, mesh = sphere(centre, radius, extra)
     points = points.clone().requires_grad_(True)
@@ -49,7 +50,7 @@ def test_finite_images_and_gradients(case, shadows):
     ambient = torch.tensor(0.4, dtype=torch.float64, requires_grad=True)
     images = render(points, mesh, K, SIZE, SIZE, outputs=("alpha", "rgb", "depth", "normal", "albedo"),
                     appearance=Appearance(albedo, normal_map), light=Light(light_position, ambient, shadows=shadows, shadow_resolution=32),
-                    background=torch.tensor([0.1, 0.2, 0.3], dtype=torch.float64))
+                    background=torch.tensor([0.1, 0.2, 0.3], dtype=torch.float64), fused=fused)
     for name, image in images.items():
         finite = torch.isfinite(image) | (name == "depth")
         assert finite.all(), name
@@ -70,9 +71,12 @@ def test_empty_batch_of_frames():
     assert images["alpha"].shape == (3, SIZE, SIZE, 1) and images["alpha"].sum() == 0
 
 
-def test_only_requested_work_is_done(monkeypatch):
+@pytest.mark.parametrize("fused", [True, False])
+def test_only_requested_work_is_done(monkeypatch, fused):
     """A silhouette-only call samples no texture and shades nothing; shadows off never builds a
     shadow map."""
+    import dataclasses
+
     import pipeline.render.renderer as renderer
 
     def forbidden(*args, **kwargs):
@@ -81,13 +85,18 @@ def test_only_requested_work_is_done(monkeypatch):
     points, mesh = sphere((0.0, 0.0, 0.5))
     appearance = Appearance(torch.full((3, 8, 8), 0.6, dtype=torch.float64))
     light = Light(torch.tensor([0.2, 0.0, 0.0], dtype=torch.float64), torch.tensor(0.5, dtype=torch.float64))
-    for name in ("sample_texture", "vertex_normals", "shadow_visibility", "uv_tangents", "shade"):
+    path = "FUSED" if fused else "REFERENCE"
+    primitives = getattr(renderer, path)
+    monkeypatch.setattr(renderer, path, dataclasses.replace(
+        primitives, vertex_normals=forbidden, shadow_visibility=forbidden, uv_tangents=forbidden,
+        perturbed_normal=forbidden))
+    for name in ("sample_texture", "shade"):
         monkeypatch.setattr(renderer, name, forbidden)
-    render(points, mesh, K, SIZE, SIZE, outputs=("alpha",), appearance=appearance, light=light)
+    render(points, mesh, K, SIZE, SIZE, outputs=("alpha",), appearance=appearance, light=light, fused=fused)
     monkeypatch.undo()
-    monkeypatch.setattr(renderer, "shadow_visibility", forbidden)
-    monkeypatch.setattr(renderer, "uv_tangents", forbidden)   # no normal map: no tangents
-    render(points, mesh, K, SIZE, SIZE, outputs=("rgb",), appearance=appearance, light=light)
+    monkeypatch.setattr(renderer, path, dataclasses.replace(    # no normal map: no tangents
+        primitives, shadow_visibility=forbidden, uv_tangents=forbidden, perturbed_normal=forbidden))
+    render(points, mesh, K, SIZE, SIZE, outputs=("rgb",), appearance=appearance, light=light, fused=fused)
 
 
 def test_unknown_output_is_refused():

@@ -13,14 +13,44 @@ import dataclasses
 
 import torch
 
+from . import fused as fused_ops
+from . import interpolate as reference_interpolate
+from . import rasterize as reference_rasterize
+from . import shading as reference_shading
+from . import shadow_map as reference_shadow_map
 from .antialias import EdgeTopology, antialias, edge_topology
-from .interpolate import fragments, interpolate, to_image
-from .rasterize import rasterize
-from .shading import perturbed_normal, shade, uv_tangents, vertex_normals
-from .shadow_map import shadow_visibility
+from .interpolate import to_image
+from .shading import shade
 from .texture import sample_texture
 
 OUTPUTS = ("alpha", "rgb", "depth", "normal", "albedo", "uv")
+
+
+@dataclasses.dataclass(frozen=True)
+class Primitives:
+    """The steps whose work the fused path lays out differently (fused.py); same formulas."""
+
+    rasterize: object
+    fragments: object
+    interpolate_many: object
+    vertex_normals: object
+    uv_tangents: object
+    perturbed_normal: object
+    shadow_visibility: object
+    composite: object
+
+
+REFERENCE = Primitives(
+    reference_rasterize.rasterize, reference_interpolate.fragments,
+    lambda attributes, frags, faces: [reference_interpolate.interpolate(a, frags, faces) for a in attributes],
+    reference_shading.vertex_normals, reference_shading.uv_tangents, reference_shading.perturbed_normal,
+    reference_shadow_map.shadow_visibility,
+    lambda values, behind, frags: torch.cat([torch.where(_covered(frags), to_image(v, frags), b)
+                                             for v, b in zip(values, behind)], dim=-1))
+FUSED = Primitives(fused_ops.rasterize, fused_ops.fragments, fused_ops.interpolate_many,
+                   fused_ops.vertex_normals, fused_ops.uv_tangents, fused_ops.perturbed_normal,
+                   fused_ops.shadow_visibility,
+                   fused_ops.composite)
 
 
 @dataclasses.dataclass
@@ -61,33 +91,42 @@ class Light:
 
 
 def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appearance=None,
-           light=None, background=None, antialiased=True):
+           light=None, background=None, antialiased=True, fused=True):
     """Render a batch of frames of one mesh.
 
     points (B, V, 3) vertices in the camera frame (OpenCV axes, metres); K (3, 3) or (B, 3, 3).
     Returns {name: (B, H, W, C)}: alpha (C=1), rgb (3, lit colour over `background`, a (3,)
     tensor or (B, H, W, 3) image, default black), depth (1, +inf where empty), normal (3,
     camera frame), albedo (3, unlit), uv (2, the texture coordinates seen, v up). alpha and rgb
-    carry silhouette gradients when antialiased.
+    carry silhouette gradients when antialiased. fused=False takes the reference primitives
+    (the same images and gradients, slower: fused.py).
     """
     unknown = set(outputs) - set(OUTPUTS)
     if unknown:
         raise ValueError(f"unknown render outputs {sorted(unknown)}; choose from {OUTPUTS}")
+    ops = FUSED if fused else REFERENCE
     faces = mesh.faces
-    rast = rasterize(points.detach(), faces, K, height, width)
-    frags = fragments(points, faces, K, rast)
+    rast = ops.rasterize(points.detach(), faces, K, height, width)
+    frags = ops.fragments(points, faces, K, rast)
     result = {}
     if "depth" in outputs:
         result["depth"] = rast.depth.unsqueeze(-1)
-    smooth_normals = None
-    if {"normal", "rgb"} & set(outputs):
-        smooth_normals = interpolate(vertex_normals(points, faces), frags, faces)
+    smooth_normals = position = None
+    if "rgb" in outputs:
+        smooth_normals, position = ops.interpolate_many([ops.vertex_normals(points, faces), points], frags, faces)
+    elif "normal" in outputs:
+        smooth_normals, = ops.interpolate_many([ops.vertex_normals(points, faces)], frags, faces)
     if "normal" in outputs:
         result["normal"] = to_image(torch.nn.functional.normalize(smooth_normals, dim=-1), frags)
+    uv = tangent = handedness = None
     if {"rgb", "albedo", "uv"} & set(outputs):
         if mesh.uvs is None:
             raise ValueError("rgb/albedo/uv outputs need a mesh with UVs")
-        uv = interpolate(mesh.uvs, frags, mesh.faces_uv)
+        if "rgb" in outputs and appearance is not None and appearance.normal_map is not None:
+            tangents, handedness = ops.uv_tangents(points, mesh.faces, mesh.uvs, mesh.faces_uv)
+            uv, tangent = ops.interpolate_many([mesh.uvs, tangents], frags, mesh.faces_uv)
+        else:
+            uv, = ops.interpolate_many([mesh.uvs], frags, mesh.faces_uv)
         if "uv" in outputs:
             result["uv"] = to_image(uv, frags)
     if {"rgb", "albedo"} & set(outputs):
@@ -100,50 +139,50 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
     if "rgb" in outputs:
         if light is None:
             raise ValueError("rgb output needs a light")
-        colour = _lit_colour(points, mesh, frags, uv, albedo, smooth_normals, appearance, light)
-        background = _background(background, points, height, width)
-        rgb = to_image(colour, frags).clone()
-        covered = rast.covered.unsqueeze(-1)
-        layers.append(("rgb", torch.where(covered, rgb, background)))
+        if appearance.normal_map is not None:
+            value = sample_texture(appearance.normal_map, uv)
+            normal = ops.perturbed_normal(smooth_normals, tangent, handedness[frags.face], value)
+        else:
+            normal = torch.nn.functional.normalize(smooth_normals, dim=-1, eps=1e-12)
+        colour = _lit_colour(ops, points, faces, frags, position, albedo, normal, light)
+        layers.append(("rgb", colour, _background(background, points, height, width)))
     if "alpha" in outputs:
         ones = torch.ones(len(frags.pixel), 1, dtype=points.dtype, device=points.device)
-        layers.append(("alpha", to_image(ones, frags)))
+        layers.append(("alpha", ones, torch.zeros(1, dtype=points.dtype, device=points.device).expand(
+            points.shape[0], height, width, 1)))
     if layers:
-        stacked = torch.cat([image for _, image in layers], dim=-1)
+        stacked = ops.composite([values for _, values, _ in layers], [behind for _, _, behind in layers], frags)
         if antialiased:
             stacked = antialias(stacked, points, K, rast, mesh.edges())
         start = 0
-        for name, image in layers:
-            result[name] = stacked[..., start:start + image.shape[-1]]
-            start += image.shape[-1]
+        for name, values, _ in layers:
+            result[name] = stacked[..., start:start + values.shape[-1]]
+            start += values.shape[-1]
     return result
 
 
-def _lit_colour(points, mesh, frags, uv, albedo, smooth_normals, appearance, light):
-    normal = smooth_normals
-    if appearance.normal_map is not None:
-        tangents, handedness = uv_tangents(points, mesh.faces, mesh.uvs, mesh.faces_uv)
-        tangent = interpolate(tangents, frags, mesh.faces_uv)
-        value = sample_texture(appearance.normal_map, uv)
-        normal = perturbed_normal(normal, tangent, handedness[frags.face], value)
-    else:
-        normal = torch.nn.functional.normalize(normal, dim=-1, eps=1e-12)
-    position = interpolate(points, frags, mesh.faces)
+def _lit_colour(ops, points, faces, frags, position, albedo, normal, light):
     light_position = light.position.to(points.dtype)
     if light_position.dim() == 2:
         light_position = light_position[frags.frame]
     to_light = torch.nn.functional.normalize(light_position - position, dim=-1, eps=1e-12)
     visibility = None
     if light.shadows:
-        visibility = shadow_visibility(points, mesh.faces, position, frags.frame, light.position.to(points.dtype),
-                                       light.shadow_resolution, light.shadow_target, light.shadow_radius)
+        visibility = ops.shadow_visibility(points, faces, position, frags.frame, light.position.to(points.dtype),
+                                           light.shadow_resolution, light.shadow_target, light.shadow_radius)
     return shade(albedo, normal, to_light, light.ambient, visibility)
 
 
+def _covered(frags):
+    """(B, H, W, 1) bool: the pixels the fragments cover (the rasterisation's covered pixels)."""
+    return to_image(torch.ones(len(frags.pixel), 1, dtype=torch.bool, device=frags.pixel.device), frags, False)
+
+
 def _background(background, points, height, width):
+    """What the colour layer lies over: (B, H, W, 3), a broadcast view where it can be."""
     batch = points.shape[0]
     if background is None:
-        return torch.zeros(batch, height, width, 3, dtype=points.dtype, device=points.device)
+        background = torch.zeros(3, dtype=points.dtype, device=points.device)
     background = torch.as_tensor(background, dtype=points.dtype, device=points.device)
     if background.dim() == 1:
         return background.view(1, 1, 1, 3).expand(batch, height, width, 3)

@@ -1,0 +1,116 @@
+"""The fused render path against the reference primitives: the same visibility bit for bit, the
+same images and gradients to 1e-5 (float64), and the hand-written backward passes against
+finite differences."""
+import numpy as np
+import pytest
+import torch
+
+from pipeline.handmodel.lbs import HandModel
+from pipeline.handmodel.poses import NAMED_POSES
+from pipeline.render import fused, rasterize
+from pipeline.render.renderer import OUTPUTS, Appearance, Light, RenderMesh, render
+from render_meshes import intrinsics
+
+SIZE = 96
+
+
+@pytest.fixture(scope="module")
+def hand_scene():
+    """Two frames of the subdivided hand in different poses, float64, with textures and a light."""
+    model = HandModel.load("hand", subdivided=True)
+    names = ["spread", "fist"]
+    pose = torch.as_tensor(np.stack([NAMED_POSES[name] for name in names]), dtype=torch.float32)
+    orient = torch.tensor([[np.pi, 0.0, 0.0], [np.pi - 0.5, 0.4, 0.2]])
+    transl = torch.tensor([[0.0, 0.09, 0.45], [0.01, 0.08, 0.5]])
+    with torch.no_grad():
+        points = model(pose=pose, global_orient=orient, transl=transl).vertices.double()
+    mesh = RenderMesh.from_model_data(model.data, dtype=torch.float64)
+    generator = torch.Generator().manual_seed(3)
+    albedo = 0.4 + 0.4 * torch.rand(3, 64, 64, generator=generator, dtype=torch.float64)
+    normal_map = torch.nn.functional.normalize(
+        torch.randn(3, 64, 64, generator=generator, dtype=torch.float64) * 0.2 + torch.tensor([0, 0, 1.0]).double()[:, None, None],
+        dim=0)
+    K = torch.stack([intrinsics(220.0, SIZE, SIZE), intrinsics(200.0, SIZE, SIZE)]).double()
+    return points, mesh, albedo, normal_map, K
+
+
+def _render_with_gradients(scene, fused_path, light_per_frame=False):
+    points, mesh, albedo, normal_map, K = scene
+    leaves = {"points": points.clone().requires_grad_(True), "albedo": albedo.clone().requires_grad_(True),
+              "normal_map": normal_map.clone().requires_grad_(True),
+              "light": (torch.tensor([[0.25, -0.3, 0.1], [0.1, -0.2, 0.2]]) if light_per_frame
+                        else torch.tensor([0.25, -0.3, 0.1])).double().requires_grad_(True),
+              "ambient": torch.tensor(0.4, dtype=torch.float64, requires_grad=True)}
+    background = torch.tensor([0.1, 0.2, 0.3], dtype=torch.float64)
+    images = render(leaves["points"], mesh, K, SIZE, SIZE, outputs=OUTPUTS,
+                    appearance=Appearance(leaves["albedo"], leaves["normal_map"]),
+                    light=Light(leaves["light"], leaves["ambient"], shadows=True, shadow_resolution=64),
+                    background=background, fused=fused_path)
+    generator = torch.Generator().manual_seed(5)
+    loss = sum((torch.nan_to_num(image, posinf=0.0) * torch.rand(image.shape, generator=generator,
+                                                                  dtype=image.dtype)).sum()
+               for name, image in images.items() if name != "depth")
+    loss.backward()
+    return {name: image.detach() for name, image in images.items()}, {name: leaf.grad for name, leaf in leaves.items()}
+
+
+@pytest.mark.parametrize("light_per_frame", [False, True])
+def test_fused_and_reference_paths_agree(hand_scene, light_per_frame):
+    reference_images, reference_grads = _render_with_gradients(hand_scene, False, light_per_frame)
+    fused_images, fused_grads = _render_with_gradients(hand_scene, True, light_per_frame)
+    assert reference_images["alpha"].sum() > 1000            # the hand is in view
+    for name, image in reference_images.items():
+        assert torch.equal(torch.isinf(image), torch.isinf(fused_images[name])), name
+        finite = torch.isfinite(image)
+        assert torch.allclose(fused_images[name][finite], image[finite], atol=1e-5, rtol=0), name
+    for name, grad in reference_grads.items():
+        assert grad.abs().max() > 0, name
+        assert torch.allclose(fused_grads[name], grad, atol=1e-5 * grad.abs().max(), rtol=0), name
+
+
+@pytest.mark.parametrize("size", [SIZE, 131])
+def test_fused_rasteriser_is_the_reference_bit_for_bit(hand_scene, size):
+    points, mesh, _, _, K = hand_scene
+    for dtype in (torch.float64, torch.float32):
+        moved = points.to(dtype) + torch.tensor([0.003, -0.002, 0.0], dtype=dtype)
+        camera = intrinsics(2.2 * size, size, size).to(dtype)
+        expected = rasterize.rasterize(moved, mesh.faces, camera, size, size)
+        got = fused.rasterize(moved, mesh.faces, camera, size, size)
+        assert torch.equal(got.face, expected.face)
+        assert torch.equal(got.depth, expected.depth)
+        assert (got.face >= 0).sum() > 100
+
+
+def test_fused_rasteriser_with_nothing_in_view(hand_scene):
+    points, mesh, _, _, K = hand_scene
+    behind = points * torch.tensor([1.0, 1.0, -1.0], dtype=points.dtype)
+    got = fused.rasterize(behind, mesh.faces, K, SIZE, SIZE)
+    assert (got.face == -1).all() and torch.isinf(got.depth).all()
+
+
+def test_barycentrics_backward_matches_finite_differences():
+    generator = torch.Generator().manual_seed(0)
+    count = 30
+    corners = torch.rand(count, 3, 3, generator=generator, dtype=torch.float64)
+    corners = corners * torch.tensor([12.0, 12.0, 1.0]).double() + torch.tensor([0.0, 0.0, 1.0]).double()
+    centre = torch.rand(count, 2, generator=generator, dtype=torch.float64) * 12
+    corners.requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda c: fused._Barycentrics.apply(c, centre), (corners,))
+
+
+def test_perturbed_normal_backward_matches_finite_differences():
+    generator = torch.Generator().manual_seed(1)
+    count = 30
+    normal, tangent, value = (torch.randn(count, 3, generator=generator, dtype=torch.float64).requires_grad_(True)
+                              for _ in range(3))
+    handedness = torch.where(torch.rand(count, generator=generator) < 0.5, -1.0, 1.0).double()
+    assert torch.autograd.gradcheck(lambda n, t, m: fused.perturbed_normal(n, t, handedness, m),
+                                    (normal, tangent, value))
+
+
+def test_interpolation_backward_matches_finite_differences():
+    generator = torch.Generator().manual_seed(2)
+    table = torch.randn(10, 4, generator=generator, dtype=torch.float64).requires_grad_(True)
+    bary = torch.rand(25, 3, generator=generator, dtype=torch.float64).requires_grad_(True)
+    corner = torch.randint(0, 10, (25, 3), generator=generator)
+    assert torch.autograd.gradcheck(lambda t, b: fused._Interpolation.apply(t, b, corner), (table, bary))
