@@ -65,7 +65,9 @@ def image_scores(rgb, alpha, clip, weight=None):
               "psnr_min": float(psnr.min()), "l1_mean": float(l1.mean()),
               "image_comparison": "render over the background plate, inside the mask"}
     if min(clip.height, clip.width) >= 176:
-        ms = metrics.ms_ssim(composed.double(), target.double())
+        # in float32: double precision changed no figure above 1e-5 and took 15x as long (266 s
+        # against 17 s for 150 frames at 448 px, where it was most of the work after the stages)
+        ms = metrics.ms_ssim(composed.float(), target.float())
         result.update(ms_ssim=ms.tolist(), ms_ssim_mean=float(ms.mean()))
     return result
 
