@@ -27,9 +27,9 @@ def hand_scene():
     mesh = RenderMesh.from_model_data(model.data, dtype=torch.float64)
     generator = torch.Generator().manual_seed(3)
     albedo = 0.4 + 0.4 * torch.rand(3, 64, 64, generator=generator, dtype=torch.float64)
+    up = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)[:, None, None]
     normal_map = torch.nn.functional.normalize(
-        torch.randn(3, 64, 64, generator=generator, dtype=torch.float64) * 0.2 + torch.tensor([0, 0, 1.0]).double()[:, None, None],
-        dim=0)
+        torch.randn(3, 64, 64, generator=generator, dtype=torch.float64) * 0.2 + up, dim=0)
     K = torch.stack([intrinsics(220.0, SIZE, SIZE), intrinsics(200.0, SIZE, SIZE)]).double()
     return points, mesh, albedo, normal_map, K
 

@@ -9,10 +9,12 @@ only how the work is laid out for a CPU:
 - a boolean selection is turned into indices once and reused, not once per tensor;
 - the rasteriser enumerates candidate pixels only for faces that have any;
 - attributes that share their corner indices are interpolated in one pass;
+- the barycentrics, the interpolation and the perturbed normal have hand-written backward
+  passes in place of autograd's record of their many small operations;
 - the shadow test reads its 3x3 texels in one gather;
 - the images' layers are written in one scatter over what lies behind them.
-The arithmetic of every value is the reference's, operation for operation, so visibility
-decisions (which face wins a pixel) are identical.
+The rasteriser does the reference's arithmetic operation for operation, so visibility (which
+face wins a pixel, at what depth) is identical; elsewhere sums may round in another order.
 """
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ import torch
 from .interpolate import Fragments
 from .rasterize import _FACE_BITS, NEAR, Rasterization, _edge, front_facing, project
 from .shadow_map import BIAS, EMPTY_DEPTH, SHARPNESS, light_camera
+
 
 @torch.no_grad()
 def rasterize(points, faces, K, height, width, cull_backfaces=True, near=NEAR):
@@ -196,7 +199,7 @@ class _Interpolation(torch.autograd.Function):
         if ctx.needs_input_grad[0]:
             # one 1-D scatter per channel: twice as fast on a CPU as one scatter of (3N, C) rows
             index = corner.reshape(-1)
-            grad_table = torch.stack([table.new_zeros(len(table)).index_add_(0, index, (bary * g.unsqueeze(1)).reshape(-1))
+            grad_table = torch.stack([table.new_zeros(len(table)).index_add_(0, index, (bary * g[:, None]).reshape(-1))
                                       for g in grad.unbind(1)], dim=1)
         if ctx.needs_input_grad[1]:
             values = table.index_select(0, corner.reshape(-1)).view(-1, 3, table.shape[1])
