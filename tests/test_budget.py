@@ -4,7 +4,7 @@ import pytest
 
 from pipeline.evaluate.exact_clips import write_clip
 from pipeline.fit import fitting
-from pipeline.fit.budget import budget_steps, parse_budget
+from pipeline.fit.budget import budget_steps, floor_seconds, parse_budget
 from pipeline.fit.checkpoint import CHECKPOINT_FILE, load_checkpoint
 from pipeline.init import initialise_sequence
 from synth.motions import OPEN
@@ -42,6 +42,25 @@ def test_the_appearance_stage_goes_first_then_geometry_then_the_alignment():
     cut = budget_steps(PLANNED, {}, COST, 200)          # every floor reached: all alike
     assert seconds(cut) <= 200 and all(cut[name] >= 1 for name in cut)
     assert cut["geometry+appearance"] < 300 and cut["align"] < 30
+
+
+def test_the_floor_is_where_every_stage_starts_being_cut_alike():
+    """floor_seconds: the cut stages at their floors and the joint stage whole. Above it the
+    joint stage keeps every step; below it, it is cut too (the fit says the budget is short)."""
+    floor = floor_seconds(PLANNED, {}, COST)
+    assert floor == 30 * 0.5 + 50 * 0.5 + 300 * 1.2 + 50 * 0.9
+    assert budget_steps(PLANNED, {}, COST, floor + 1)["geometry+appearance"] == 300
+    assert budget_steps(PLANNED, {}, COST, floor - 10)["geometry+appearance"] < 300
+    done = {"align": 100, "geometry": 120}                # steps taken are not charged again
+    assert floor_seconds(PLANNED, done, COST) == 300 * 1.2 + 50 * 0.9
+
+
+def test_a_short_budget_says_which_preset_would_suit_it():
+    from types import SimpleNamespace
+
+    note = fitting._short_budget_note(SimpleNamespace(stage_seconds=164.0, needed_seconds=1900.0), "full")
+    assert "2.7 min of the 31.7 min" in note and "preset balanced or fast" in note
+    assert "longer budget" in fitting._short_budget_note(SimpleNamespace(stage_seconds=-5.0, needed_seconds=60.0), "fast")
 
 
 def test_steps_already_taken_are_kept_and_not_charged():
@@ -97,7 +116,7 @@ def test_the_keeper_replans_with_the_rates_the_fit_runs_at():
     assert keeper.estimate.time_left.seconds_left(estimate.plan()) < 1.1 * (610 - 150)
 
 
-def test_a_budgeted_fit_cuts_its_schedule_and_resumes_on_its_plan(tiny_clip, tmp_path):
+def test_a_budgeted_fit_cuts_its_schedule_and_resumes_on_its_plan(tiny_clip, tmp_path, capsys):
     """A budget below anything the fit could do: every stage cut, down to a step if need be,
     and the fit ends; resumed without --budget it keeps the plan it saved (no "other settings"
     error)."""
@@ -108,6 +127,7 @@ def test_a_budgeted_fit_cuts_its_schedule_and_resumes_on_its_plan(tiny_clip, tmp
     assert saved.budget_seconds == 2 and saved.align_steps < 100
     assert all(1 <= cut < planned for cut, planned in zip(saved.steps, (40, 60, 40)))
     assert report["estimate"]["calibrated"] and report["estimate"]["budget_seconds"] == 2
+    assert "so every stage is cut short" in capsys.readouterr().err    # the opening line says so
     again = fitting.fit(tiny_clip, out, resume=True, **options)
     assert load_checkpoint(out / CHECKPOINT_FILE, "cpu").settings.steps == saved.steps
     assert again["metrics"] == report["metrics"]

@@ -57,6 +57,14 @@ def budget_steps(planned, done, seconds_per_step, seconds) -> dict:
     return steps
 
 
+def floor_seconds(planned, done, seconds_per_step) -> float:
+    """Seconds the steps left take with every stage of CUT_ORDER at its floor: with less time
+    than this, every stage is cut alike, below what the study's curves show each needs."""
+    floors = {name: round(floor * planned[name]) for name, floor in CUT_ORDER if name in planned}
+    return sum(max(0, max(floors.get(name, steps), done.get(name, 0)) - done.get(name, 0)) * seconds_per_step[name]
+               for name, steps in planned.items())
+
+
 class BudgetKeeper:
     """Holds a fit to problem.settings.budget_seconds: `replan()` at the start and every
     REPLAN_STEPS steps rewrites the settings' steps (and the running stage's) to what fits in
@@ -69,10 +77,16 @@ class BudgetKeeper:
         self.problem, self.state, self.estimate = problem, state, estimate
         self.started, self.spent_before, self.measured_before = started, spent_before, state.measure_seconds
         self.planned = {stage.name: stage.steps for stage in problem.settings.stages() if estimate.active(stage)}
+        self.stage_seconds = self.needed_seconds = None   # of the first plan: for the opening line
 
     @property
     def seconds(self):
         return self.problem.settings.budget_seconds
+
+    @property
+    def too_short(self):
+        """The first plan had to cut every stage below its floor (the budget suits a lighter preset)."""
+        return self.stage_seconds is not None and self.stage_seconds < self.needed_seconds
 
     def spent(self, now):
         return self.spent_before + now - self.started - (self.state.measure_seconds - self.measured_before)
@@ -97,6 +111,8 @@ class BudgetKeeper:
                  time_left.rate(name) for name in rates}
         available = AIM * (self.seconds - self.spent(now)) - self.estimate.costs.after_stages * time_left.speed
         steps = budget_steps(planned, done, rates, available)
+        if self.stage_seconds is None:
+            self.stage_seconds, self.needed_seconds = available, floor_seconds(planned, done, rates)
         settings.align_steps = steps.get("align", settings.align_steps)
         settings.steps = tuple(steps.get(stage.name, stage.steps) for stage in stages[1:])
         if run is not None:

@@ -150,7 +150,17 @@ def _opening_line(problem, preset, estimate):
                "not compared" if problem.mask_cut_frames else "")
             + f"; expected time {_duration(estimate.expected_seconds)} on {problem.device} "
             + (f"(step costs measured in {estimate.costs.calibration_seconds:.0f} s)" if estimate.costs.calibrated
-               else "(a small fit: step costs not measured)"))
+               else "(a small fit: step costs not measured)")
+            + (_short_budget_note(estimate.budget, preset) if estimate.budget is not None and estimate.budget.too_short
+               else ""))
+
+
+def _short_budget_note(budget, preset):
+    lighter = {"full": "balanced or fast", "balanced": "fast"}.get(preset)
+    return (f"; the budget leaves the stages {_duration(max(0.0, budget.stage_seconds))} of the "
+            f"{_duration(budget.needed_seconds)} that preset {preset} needs at the least on this clip, so every "
+            "stage is cut short" + (f": preset {lighter} would use the time better" if lighter
+                                    else ": a longer budget or fewer frames would help"))
 
 
 def _duration(seconds):
