@@ -61,7 +61,7 @@ def floor_seconds(planned, done, seconds_per_step) -> float:
     """Seconds the steps left take with every stage of CUT_ORDER at its floor: with less time
     than this, every stage is cut alike, below what the study's curves show each needs."""
     floors = {name: round(floor * planned[name]) for name, floor in CUT_ORDER if name in planned}
-    return sum(max(0, max(floors.get(name, steps), done.get(name, 0)) - done.get(name, 0)) * seconds_per_step[name]
+    return sum(max(0, floors.get(name, steps) - done.get(name, 0)) * seconds_per_step[name]
                for name, steps in planned.items())
 
 
