@@ -21,8 +21,9 @@ from __future__ import annotations
 import torch
 
 from .interpolate import Fragments
-from .rasterize import _FACE_BITS, NEAR, Rasterization, _edge, front_facing, project
-from .shadow_map import BIAS, EMPTY_DEPTH, SHARPNESS, light_camera
+from .rasterize import _FACE_BITS, NEAR, Rasterization, face_boxes, project
+from .shading import face_tangents
+from .shadow_map import BIAS, EMPTY_DEPTH, SHARPNESS, light_view
 
 
 @torch.no_grad()
@@ -30,25 +31,8 @@ def rasterize(points, faces, K, height, width, cull_backfaces=True, near=NEAR):
     """rasterize.rasterize, the same result bit for bit."""
     device, dtype = points.device, points.dtype
     batch, num_faces = points.shape[0], faces.shape[0]
-    pixels = project(points, K)
-    z = points[..., 2]
-    p0, p1, p2 = (pixels[:, faces[:, k]] for k in range(3))          # (B, F, 2)
-    z0, z1, z2 = (z.index_select(1, faces[:, k]) for k in range(3))    # (B, F)
-    area = _edge(p0, p1, p2)
-    valid = (z0 > near) & (z1 > near) & (z2 > near) & (area.abs() > 1e-12)
-    valid &= torch.isfinite(area)
-    if cull_backfaces:
-        valid &= front_facing(points, faces)
-    lo = torch.minimum(torch.minimum(p0, p1), p2)
-    hi = torch.maximum(torch.maximum(p0, p1), p2)
-    x0 = torch.ceil(lo[..., 0] - 0.5).clamp(min=0)
-    x1 = torch.floor(hi[..., 0] - 0.5).clamp(max=width - 1)
-    y0 = torch.ceil(lo[..., 1] - 0.5).clamp(min=0)
-    y1 = torch.floor(hi[..., 1] - 0.5).clamp(max=height - 1)
-    box_w = (x1 - x0 + 1).clamp(min=0)
-    box_h = (y1 - y0 + 1).clamp(min=0)
-    box_w = torch.where(valid, box_w, torch.zeros_like(box_w))
-    count = (box_w * box_h).long().reshape(-1)
+    p0, p1, p2, z0, z1, z2, area, x0, y0, box_w, count = face_boxes(points, faces, K, height, width,
+                                                                    cull_backfaces, near)
     depth = torch.full((batch * height * width,), float("inf"), dtype=dtype, device=device)
     face_map = torch.full((batch * height * width,), -1, dtype=torch.long, device=device)
     live = torch.nonzero(count).squeeze(1)                            # faces with candidates
@@ -271,12 +255,7 @@ def uv_tangents(points, faces, uvs, faces_uv):
     flat = points.reshape(-1, 3)
     p0, p1, p2 = (flat.index_select(0, corner[k]).view(batch, -1, 3) for k in range(3))
     t0, t1, t2 = (uvs.index_select(0, faces_uv[:, k]) for k in range(3))
-    e1, e2 = p1 - p0, p2 - p0
-    d1, d2 = t1 - t0, t2 - t0
-    det = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
-    handedness = torch.where(det < 0, -1.0, 1.0).to(points.dtype)
-    safe = torch.where(det.abs() > 1e-20, det, torch.full_like(det, 1e-20))
-    face_tangent = (e1 * d2[:, 1, None] - e2 * d1[:, 1, None]) / safe[:, None]
+    face_tangent, handedness = face_tangents(p0, p1, p2, t0, t1, t2)
     uv_corner = _corners_of_every_frame(faces_uv, batch, len(uvs)).reshape(-1)
     tangents = torch.zeros(batch * len(uvs), 3, dtype=points.dtype, device=points.device)
     tangents = tangents.index_add(0, uv_corner, face_tangent.reshape(-1, 3).repeat(3, 1))
@@ -293,14 +272,7 @@ def shadow_visibility(points, faces, surface_points, surface_frame, light_positi
                       target=None, radius=None):
     """shadow_map.shadow_visibility on the fused primitives, the 3x3 texels in one gather."""
     batch = points.shape[0]
-    light_position = light_position.expand(batch, 3) if light_position.dim() == 1 else light_position
-    with torch.no_grad():
-        centre = 0.5 * (points.amin(1) + points.amax(1)) if target is None else target.expand(batch, 3)
-        if radius is None:
-            radius = (points - centre[:, None]).norm(dim=-1).amax()
-        radius = torch.as_tensor(radius, dtype=points.dtype, device=points.device)
-    rotation, eye, K = light_camera(light_position, centre, radius, resolution)
-    in_light = torch.einsum("bij,bvj->bvi", rotation, points - eye[:, None])
+    rotation, eye, K, in_light = light_view(points, light_position, resolution, target, radius)
     rast = rasterize(in_light, faces, K, resolution, resolution)
     frags = fragments(in_light, faces, K, rast)
     padded = resolution + 2

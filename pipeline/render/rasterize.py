@@ -57,19 +57,14 @@ def front_facing(points, faces):
 
 
 @torch.no_grad()
-def rasterize(points, faces, K, height, width, cull_backfaces=True, near=NEAR):
-    """Nearest face and depth at every pixel centre.
-
-    points: (B, V, 3) vertex positions in the camera frame (metres, OpenCV axes);
-    faces: (F, 3) long; K: (B, 3, 3) or (3, 3) intrinsics in pixels.
-    cull_backfaces drops faces turned away from the camera (exact for closed meshes).
-    """
-    device = points.device
-    batch, num_faces = points.shape[0], faces.shape[0]
+def face_boxes(points, faces, K, height, width, cull_backfaces=True, near=NEAR):
+    """Per face and frame: screen corners p0, p1, p2 (B, F, 2), depths z0, z1, z2 (B, F), twice
+    the signed area, the first pixel x0, y0 and width of its box of pixel centres, and the
+    number of pixels in that box, flat (B * F,) (0 for a culled or invalid face)."""
     pixels = project(points, K)
     z = points[..., 2]
-    p0, p1, p2 = (pixels[:, faces[:, k]] for k in range(3))          # (B, F, 2)
-    z0, z1, z2 = (z[:, faces[:, k]] for k in range(3))                # (B, F)
+    p0, p1, p2 = (pixels.index_select(1, faces[:, k]) for k in range(3))
+    z0, z1, z2 = (z.index_select(1, faces[:, k]) for k in range(3))
     area = _edge(p0, p1, p2)                                          # twice the signed area
     valid = (z0 > near) & (z1 > near) & (z2 > near) & (area.abs() > 1e-12)
     valid &= torch.isfinite(area)
@@ -86,6 +81,21 @@ def rasterize(points, faces, K, height, width, cull_backfaces=True, near=NEAR):
     box_h = (y1 - y0 + 1).clamp(min=0)
     box_w = torch.where(valid, box_w, torch.zeros_like(box_w))
     count = (box_w * box_h).long().reshape(-1)
+    return p0, p1, p2, z0, z1, z2, area, x0, y0, box_w, count
+
+
+@torch.no_grad()
+def rasterize(points, faces, K, height, width, cull_backfaces=True, near=NEAR):
+    """Nearest face and depth at every pixel centre.
+
+    points: (B, V, 3) vertex positions in the camera frame (metres, OpenCV axes);
+    faces: (F, 3) long; K: (B, 3, 3) or (3, 3) intrinsics in pixels.
+    cull_backfaces drops faces turned away from the camera (exact for closed meshes).
+    """
+    device = points.device
+    batch, num_faces = points.shape[0], faces.shape[0]
+    p0, p1, p2, z0, z1, z2, area, x0, y0, box_w, count = face_boxes(points, faces, K, height, width,
+                                                                    cull_backfaces, near)
     depth = torch.full((batch * height * width,), float("inf"), dtype=points.dtype, device=device)
     face_map = torch.full((batch * height * width,), -1, dtype=torch.long, device=device)
     total = int(count.sum())

@@ -20,16 +20,22 @@ def uv_tangents(points, faces, uvs, faces_uv):
     per-face handedness (F,) (+1, or -1 where a chart is mirrored in UV space)."""
     p0, p1, p2 = (points[:, faces[:, k]] for k in range(3))
     t0, t1, t2 = (uvs[faces_uv[:, k]] for k in range(3))
-    e1, e2 = p1 - p0, p2 - p0
-    d1, d2 = t1 - t0, t2 - t0
-    det = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
-    handedness = torch.where(det < 0, -1.0, 1.0).to(points.dtype)
-    safe = torch.where(det.abs() > 1e-20, det, torch.full_like(det, 1e-20))
-    face_tangent = (e1 * d2[:, 1, None] - e2 * d1[:, 1, None]) / safe[:, None]
+    face_tangent, handedness = face_tangents(p0, p1, p2, t0, t1, t2)
     tangents = torch.zeros(points.shape[0], uvs.shape[0], 3, dtype=points.dtype, device=points.device)
     for k in range(3):
         tangents = tangents.index_add(1, faces_uv[:, k], face_tangent)
     return tangents, handedness
+
+
+def face_tangents(p0, p1, p2, t0, t1, t2):
+    """Per-face tangent (B, F, 3) from corner positions (B, F, 3) and UVs (F, 2), and the
+    handedness (F,): +1, or -1 where the face is mirrored in UV space."""
+    e1, e2 = p1 - p0, p2 - p0
+    d1, d2 = t1 - t0, t2 - t0
+    det = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
+    handedness = torch.where(det < 0, -1.0, 1.0).to(p0.dtype)
+    safe = torch.where(det.abs() > 1e-20, det, torch.full_like(det, 1e-20))
+    return (e1 * d2[:, 1, None] - e2 * d1[:, 1, None]) / safe[:, None], handedness
 
 
 def perturbed_normal(normal, tangent, handedness, normal_map_value):

@@ -39,6 +39,20 @@ def light_camera(light_position, centre, radius, resolution):
     return rotation, eye, K
 
 
+def light_view(points, light_position, resolution, target=None, radius=None):
+    """The shadow camera of shadow_visibility: (rotation (B, 3, 3), eye (B, 3), K (3, 3), the
+    mesh in the light's frame (B, V, 3)); the framing (target, radius) carries no gradient."""
+    batch = points.shape[0]
+    light_position = light_position.expand(batch, 3) if light_position.dim() == 1 else light_position
+    with torch.no_grad():
+        centre = 0.5 * (points.amin(1) + points.amax(1)) if target is None else target.expand(batch, 3)
+        if radius is None:
+            radius = (points - centre[:, None]).norm(dim=-1).amax()
+        radius = torch.as_tensor(radius, dtype=points.dtype, device=points.device)
+    rotation, eye, K = light_camera(light_position, centre, radius, resolution)
+    return rotation, eye, K, torch.einsum("bij,bvj->bvi", rotation, points - eye[:, None])
+
+
 def shadow_visibility(points, faces, surface_points, surface_frame, light_position, resolution=256,
                       target=None, radius=None):
     """Visibility V (N, 1) in [0, 1] of surface points seen from the light.
@@ -48,14 +62,7 @@ def shadow_visibility(points, faces, surface_points, surface_frame, light_positi
     camera looks at `target` (3,) or (B, 3) and holds a sphere of `radius` (metres); both default
     to the mesh's bounding box, and gradients treat this framing as fixed."""
     batch = points.shape[0]
-    light_position = light_position.expand(batch, 3) if light_position.dim() == 1 else light_position
-    with torch.no_grad():
-        centre = 0.5 * (points.amin(1) + points.amax(1)) if target is None else target.expand(batch, 3)
-        if radius is None:
-            radius = (points - centre[:, None]).norm(dim=-1).amax()
-        radius = torch.as_tensor(radius, dtype=points.dtype, device=points.device)
-    rotation, eye, K = light_camera(light_position, centre, radius, resolution)
-    in_light = torch.einsum("bij,bvj->bvi", rotation, points - eye[:, None])
+    rotation, eye, K, in_light = light_view(points, light_position, resolution, target, radius)
     rast = rasterize(in_light, faces, K, resolution, resolution)
     frags = fragments(in_light, faces, K, rast)
     depth_map = torch.full((batch * resolution * resolution,), EMPTY_DEPTH, dtype=points.dtype, device=points.device)
