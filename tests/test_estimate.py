@@ -1,13 +1,16 @@
 """The fit's time estimate (pipeline/fit/estimate.py): the plan of steps still to take, the time
 left as a fit runs against a simulated truth, and the calibration's throwaway steps, which must
 leave the avatar exactly as it was."""
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
 
 from pipeline.evaluate.exact_clips import write_clip
 from pipeline.fit.checkpoint import FitState
-from pipeline.fit.estimate import StepCosts, TimeLeft, calibrate, remaining_plan, step_kind
+from pipeline.fit import estimate as estimate_module
+from pipeline.fit.estimate import FitEstimate, StepCosts, TimeLeft, calibrate, remaining_plan, step_kind
 from pipeline.fit.problem import build_problem
 from pipeline.fit.settings import settings_for
 from pipeline.init import initialise_sequence
@@ -113,3 +116,26 @@ def test_calibration_times_each_kind_and_leaves_the_avatar_bit_for_bit(problem):
     for name, value in problem.avatar.state_dict().items():
         assert torch.equal(value, before[name]), name
     assert all(parameter.grad is None for parameter in problem.avatar.parameters())
+
+
+def test_the_time_observers_take_is_no_steps_time(problem, monkeypatch):
+    """The anytime curve measures between steps (FitState.measure_seconds): a step's duration,
+    the stage's rate and the trace's time axis leave that time out (it once made the time left
+    of a fit with --curve three times too long)."""
+    clock = [1000.0]
+    monkeypatch.setattr(estimate_module.time, "perf_counter", lambda: clock[0])
+    small = dataclasses.replace(problem, settings=dataclasses.replace(problem.settings, steps=(10, 10, 10),
+                                                                      align_steps=10))
+    state = FitState.fresh(len(small.settings.stages()), "off")
+    estimate = FitEstimate(small, state, clock[0])
+    assert not estimate.costs.calibrated
+    for step in range(8):
+        clock[0] += 2.0                      # a step
+        if step == 4:                        # a curve point measured before this step's end
+            clock[0] += 30.0
+            state.measure_seconds += 30.0
+        state.step += 1
+        estimate.step("align", None)
+    assert list(estimate.time_left.recent["align"]) == pytest.approx([2.0] * 8)
+    assert estimate.fitting_seconds(clock[0]) == pytest.approx(16.0)
+    assert estimate.trace[-1][0] == pytest.approx(10.0)   # the first trace point after 10 s of fitting
