@@ -125,6 +125,19 @@ def test_harp_plot_draws_the_curves(curve_fit, tmp_path):
     assert main(["plot", str(tmp_path / "missing"), "--out", str(picture)]) == 1
 
 
+def test_a_fit_known_only_by_its_end_is_drawn_as_one_star(curve_fit, tmp_path):
+    import cv2
+
+    from pipeline.evaluate.plot import plot_curves
+
+    out, _ = curve_fit
+    last = read_curve(out)["points"][-1]
+    plain = cv2.imread(str(plot_curves([out], tmp_path / "plain.png", figures=("l1_mean",))))
+    starred = cv2.imread(str(plot_curves([out], tmp_path / "starred.png", figures=("l1_mean",),
+                                         finals=[("a long fit", 4 * last["fit_seconds"], {"l1_mean": last["l1_mean"]})])))
+    assert plain.shape == starred.shape and (np.abs(plain.astype(int) - starred).sum(-1) > 60).sum() > 50
+
+
 def test_full_preset_counts_its_epochs_over_the_frames_it_fits():
     assert settings_for("full", 150).steps == (900, 450, 450)                  # 9 batches of 18 per epoch
     assert settings_for("full", 150, max_frames=30).steps == (200, 100, 100)   # 2 batches per epoch

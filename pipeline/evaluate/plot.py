@@ -19,10 +19,11 @@ def curve_label(folder, curve):
     return f"{Path(folder).name} ({curve.get('preset', '?')})"
 
 
-def plot_curves(folders, out, figures=DEFAULT_FIGURES, labels=None, title=None, targets=None):
+def plot_curves(folders, out, figures=DEFAULT_FIGURES, labels=None, title=None, targets=None, finals=()):
     """Draw the curves of the fits in `folders` into the PNG `out`; returns its path.
     `labels` name the fits (default: folder and preset); `targets` ({figure: value}) draws a
-    dashed horizontal line per panel (e.g. the level a preset must reach)."""
+    dashed horizontal line per panel (e.g. the level a preset must reach); `finals` draws fits
+    known only by their end, one star each: [(label, fit seconds, {figure: value})]."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -31,7 +32,8 @@ def plot_curves(folders, out, figures=DEFAULT_FIGURES, labels=None, title=None, 
     curves = [read_curve(folder) for folder in folders]
     labels = labels or [curve_label(folder, curve) for folder, curve in zip(folders, curves)]
     shown = [name for name in figures
-             if any(point.get(name) is not None for curve in curves for point in curve["points"])]
+             if any(point.get(name) is not None for curve in curves for point in curve["points"])
+             or any(values.get(name) is not None for _, _, values in finals)]
     if not shown:
         raise ValueError("the curves hold none of the figures " + ", ".join(figures))
     columns = min(3, len(shown))
@@ -50,6 +52,9 @@ def plot_curves(folders, out, figures=DEFAULT_FIGURES, labels=None, title=None, 
             line, = axis.plot(times, values, marker=".", markersize=4, label=text)
             if points[0]["fit_seconds"] <= 0:
                 axis.plot([left], [values[0]], marker="o", fillstyle="none", color=line.get_color())
+        for text, seconds, values in finals:
+            if values.get(name) is not None:
+                axis.plot([seconds], [values[name]], marker="*", markersize=10, linestyle="none", label=text)
         if targets and name in targets:
             axis.axhline(targets[name], color="grey", linestyle="--", linewidth=0.8)
         axis.set_xscale("log")
