@@ -1,9 +1,12 @@
 """The fit's energy terms on analytic cases."""
+import types
+
 import numpy as np
 import pytest
 import torch
 
 from pipeline.fit import losses
+from pipeline.fit.problem import FitProblem
 from pipeline.render.antialias import edge_topology
 from scipy.spatial.transform import Rotation
 
@@ -78,6 +81,20 @@ def test_photometric_loss_ignores_the_mask_border():
     assert losses.photometric_loss(rendered, image, mask).item() == 0.0
     rendered[:, 9, 9] += 0.36
     assert losses.photometric_loss(rendered, image, mask).item() == pytest.approx(0.36 / 36)
+
+
+def test_the_problem_erodes_every_mask_once_as_the_photometric_term_would():
+    """FitProblem.photometric_inside (in chunks of frames) is the term's own erosion of every
+    frame, and the term given it is the term."""
+    generator = torch.Generator().manual_seed(1)
+    masks = (torch.rand(21, 24, 30, 1, generator=generator) > 0.3).double()
+    stand_in = types.SimpleNamespace(clip=types.SimpleNamespace(masks=masks))
+    inside = FitProblem.photometric_inside.func(stand_in)
+    assert inside.dtype == torch.bool and torch.equal(inside, losses.eroded_mask(masks, 2) > 0.5)
+    rendered, image = torch.rand(2, 21, 24, 30, 3, generator=generator, dtype=torch.float64)
+    batch = torch.tensor([3, 17, 20])
+    assert losses.photometric_loss(rendered[batch], image[batch], masks[batch], inside=inside[batch]).item() == \
+        losses.photometric_loss(rendered[batch], image[batch], masks[batch]).item()
 
 
 def test_texture_regularisers():

@@ -60,3 +60,24 @@ def test_laplacian_pyramid_loss_weighs_structure_over_brightness():
     for band in reversed(levels[:-1]):
         rebuilt = torch.nn.functional.interpolate(rebuilt, size=band.shape[-2:], mode="bilinear", align_corners=False) + band
     assert torch.allclose(rebuilt, sharp.permute(0, 3, 1, 2), atol=1e-6)
+
+
+def test_laplacian_pyramid_loss_is_the_l1_between_two_pyramids():
+    """The loss takes one pyramid of the masked difference; by the pyramid's linearity that is
+    the L1 between the pyramids of the two masked images (its definition), values and gradients."""
+    generator = torch.Generator().manual_seed(3)
+    rendered = torch.rand(2, 37, 45, 3, generator=generator, dtype=torch.float64, requires_grad=True)
+    image = torch.rand(2, 37, 45, 3, generator=generator, dtype=torch.float64)
+    mask = (torch.rand(2, 37, 45, 1, generator=generator) > 0.3).double()
+
+    def two_pyramids(a, b):
+        pa = perceptual.laplacian_pyramid((a * mask).permute(0, 3, 1, 2), 5)
+        pb = perceptual.laplacian_pyramid((b * mask).permute(0, 3, 1, 2), 5)
+        return sum((x - y).abs().mean() for x, y in zip(pa, pb)) / len(pa)
+
+    fused = perceptual.laplacian_pyramid_loss(rendered, image, mask)
+    definition = two_pyramids(rendered, image)
+    assert fused.item() == pytest.approx(definition.item(), rel=1e-12)
+    grad_fused, = torch.autograd.grad(fused, rendered)
+    grad_definition, = torch.autograd.grad(definition, rendered)
+    assert torch.allclose(grad_fused, grad_definition, atol=1e-12)

@@ -31,11 +31,11 @@ import torch
 
 from ..render.renderer import render
 from ..render.texture import bilinear_texels
-from .losses import eroded_mask
+from .losses import PHOTOMETRIC_EROSION, eroded_mask
 
 MIN_COVERAGE = 1.0      # bilinear weight (about one pixel's worth) a texel needs to be solved
 MIN_SHADING = 0.05      # pixels darker than this (shading of an albedo of 1) carry no colour
-MASK_EROSION = 2        # pixels, as the photometric term's
+MASK_EROSION = PHOTOMETRIC_EROSION   # pixels, as the photometric term's
 SMOOTHNESS = 1e-2       # neighbour pull, against the mean data weight of a solved texel
 ANCHOR = 1e-4           # the first solve's pull towards the current albedo, likewise
 WELL_SEEN = 8.0         # coverage of the texels that measure how far off the current albedo is

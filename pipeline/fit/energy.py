@@ -47,7 +47,8 @@ def batch_energy(problem: FitProblem, stage: Stage, batch, shadows, generator):
     if stage.appearance:
         rendered = images["rgb"] * avatar.exposure_gain(batch) if problem.exposure_on else images["rgb"]
         target = frames * masks
-        add("photometric", lambda: losses.photometric_loss(rendered, target, masks))
+        add("photometric", lambda: losses.photometric_loss(rendered, target, masks,
+                                                           inside=problem.photometric_inside[batch]))
         add("perceptual", lambda: problem.perceptual(rendered * masks, target, masks))
         add("texture", lambda: losses.texture_smoothness_loss(avatar.albedo, problem.uv_mask, generator))
         add("normal_map", lambda: losses.normal_map_loss(torch.nn.functional.normalize(avatar.normal_map, dim=0),

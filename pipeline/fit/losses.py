@@ -82,10 +82,15 @@ def eroded_mask(mask, pixels=2):
     return (1 - grown).permute(0, 2, 3, 1)
 
 
-def photometric_loss(rendered, image, mask, erosion=2):
+PHOTOMETRIC_EROSION = 2    # pixels
+
+
+def photometric_loss(rendered, image, mask, erosion=PHOTOMETRIC_EROSION, inside=None):
     """L1 between rendered and input images (B, H, W, 3) inside the mask eroded by `erosion`
-    pixels, averaged over the covered pixels and channels."""
-    inside = eroded_mask(mask, erosion)
+    pixels, averaged over the covered pixels and channels. `inside` (B, H, W, 1): that eroded
+    mask, when the caller has it already (FitProblem.photometric_inside: the erosion on a CPU
+    cost as much as the rest of the term)."""
+    inside = eroded_mask(mask, erosion) if inside is None else inside.to(rendered.dtype)
     count = inside.sum().clamp(min=1) * rendered.shape[-1]
     return ((rendered - image).abs() * inside).sum() / count
 

@@ -7,6 +7,7 @@ which parameters come from another fit and stay frozen.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
 from typing import Callable
 
@@ -21,6 +22,7 @@ from ..handmodel.uv_atlas import uv_mask as atlas_mask
 from ..render.rasterize import project
 from .avatar import Avatar
 from .clip_data import ClipData, load_clip
+from .losses import PHOTOMETRIC_EROSION, eroded_mask
 from .mask_cuts import cut_regions
 from .perceptual import perceptual_term
 from .settings import FitSettings
@@ -74,6 +76,14 @@ class FitProblem:
 
     def all_frames(self) -> torch.Tensor:
         return torch.arange(len(self.frames), device=self.device)
+
+    @functools.cached_property
+    def photometric_inside(self) -> torch.Tensor:
+        """(F, H, W, 1) bool: each frame's mask eroded as the photometric term compares it,
+        computed once (per step it took as long as the rest of the term)."""
+        masks = self.clip.masks
+        return torch.cat([eroded_mask(masks[start:start + 16], PHOTOMETRIC_EROSION) > 0.5
+                          for start in range(0, len(masks), 16)])
 
 
 def default_device(device=None):
