@@ -7,10 +7,20 @@ shadows; each on the reference primitives (`render(..., fused=False)`) and the f
 (the default), timed in alternating rounds in one run so that both see the same machine, with
 the median of the rounds. --profile adds a breakdown by stage and the top operators
 (torch.profiler).
+
+--then DIR adds the renderer of an earlier commit, timed in the same alternating rounds (the
+reference path shares render()'s composition with the fused one, so it speeds up with it):
+
+    git archive 377ae01 pipeline | tar -x -C DIR && mv DIR/pipeline DIR/pipeline_then
+    .venv/bin/python benchmarks/bench_renderer.py --then DIR
+
+(377ae01: the renderer when the speed issue was filed.)
 """
 from __future__ import annotations
 
 import argparse
+import importlib
+import sys
 
 import numpy as np
 import torch
@@ -63,6 +73,18 @@ def run(points, mesh, size, workload, params, fused=True):
     loss.backward()
 
 
+def run_then(then, then_mesh, points, size, workload, params):
+    """run() on the renderer of an earlier commit (the module pipeline_then.render.renderer)."""
+    albedo, normal_map, light_position, ambient = params
+    vertices = points.clone().requires_grad_(True)
+    K = torch.tensor([[size * 2.0, 0, size / 2], [0, size * 2.0, size / 2], [0, 0, 1]], device=points.device)
+    images = then.render(vertices, then_mesh, K, size, size,
+                         outputs=workload["outputs"], appearance=then.Appearance(albedo, normal_map),
+                         light=then.Light(light_position, ambient, shadows=workload["shadows"]))
+    loss = sum(image.mean() for image in images.values())
+    loss.backward()
+
+
 def stage_breakdown(points, mesh, size, repeats):
     """Milliseconds per frame of the silhouette path's stages."""
     K = torch.tensor([[size * 2.0, 0, size / 2], [0, size * 2.0, size / 2], [0, 0, 1]], device=points.device)
@@ -88,22 +110,32 @@ def main():
     parser.add_argument("--repeats", type=int, default=7, help="alternating rounds of each path")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     parser.add_argument("--profile", action="store_true")
+    parser.add_argument("--then", metavar="DIR", help="also time the earlier renderer in DIR/pipeline_then")
     args = parser.parse_args()
     model, points, mesh = scene(args.frames, args.mode, args.device)
     params = parameters(args.device)
+    then = None
+    if args.then:
+        sys.path.insert(0, args.then)
+        then = importlib.import_module("pipeline_then.render.renderer")
+        then_mesh = then.RenderMesh.from_model_data(model.data, device=args.device)
     print(f"{args.mode} model subdivided: {model.data.num_vertices} vertices, {len(model.data.faces)} faces; "
           f"{args.frames} frames; {args.device}; torch {torch.__version__}, {torch.get_num_threads()} threads")
-    print(f"forward+backward, ms per frame (median of {args.repeats} alternating rounds): reference / fused = speed-up")
-    print(f"{'workload':<22}" + "".join(f"{f'{s}x{s}':>30}" for s in args.sizes))
+    print(f"forward+backward, ms per frame (median of {args.repeats} alternating rounds): "
+          + ("then / " if then else "") + "reference / fused = speed-up" + (" over then" if then else ""))
+    width = 38 if then else 30
+    print(f"{'workload':<22}" + "".join(f"{f'{s}x{s}':>{width}}" for s in args.sizes))
     for name, workload in WORKLOADS.items():
         cells = []
         for size in args.sizes:
-            reference, fused = alternating_medians(
-                [lambda: run(points, mesh, size, workload, params, fused=False),
-                 lambda: run(points, mesh, size, workload, params, fused=True)], args.repeats)
-            cells.append(f"{1000 * reference / args.frames:.1f} / {1000 * fused / args.frames:.1f} = "
-                         f"{reference / fused:.2f}x")
-        print(f"{name:<22}" + "".join(f"{cell:>30}" for cell in cells))
+            calls = [lambda: run(points, mesh, size, workload, params, fused=False),
+                     lambda: run(points, mesh, size, workload, params, fused=True)]
+            if then:
+                calls.insert(0, lambda: run_then(then, then_mesh, points, size, workload, params))
+            medians = alternating_medians(calls, args.repeats)
+            cells.append(" / ".join(f"{1000 * m / args.frames:.1f}" for m in medians)
+                         + f" = {medians[0] / medians[-1]:.2f}x")
+        print(f"{name:<22}" + "".join(f"{cell:>{width}}" for cell in cells))
     if args.profile:
         size = args.sizes[0]
         print(f"\nsilhouette stages at {size}x{size} (forward, ms/frame):")

@@ -154,10 +154,10 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
         stacked = ops.composite([values for _, values, _ in layers], [behind for _, _, behind in layers], frags)
         if antialiased:
             stacked = antialias(stacked, points, K, rast, mesh.edges())
-        start = 0
-        for name, values, _ in layers:
-            result[name] = stacked[..., start:start + values.shape[-1]]
-            start += values.shape[-1]
+        # split, not slices: the backward of a slice fills a zero image as large as the stack
+        # for each layer; that of a split writes one
+        parts = stacked.split([values.shape[-1] for _, values, _ in layers], dim=-1)
+        result.update((name, part) for (name, _, _), part in zip(layers, parts))
     return result
 
 
