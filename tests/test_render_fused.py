@@ -7,7 +7,7 @@ import torch
 
 from pipeline.handmodel.lbs import HandModel
 from pipeline.handmodel.poses import NAMED_POSES
-from pipeline.render import fused, rasterize
+from pipeline.render import fused, rasterize, shading
 from pipeline.render.renderer import OUTPUTS, Appearance, Light, RenderMesh, render
 from render_meshes import intrinsics
 
@@ -114,3 +114,28 @@ def test_interpolation_backward_matches_finite_differences():
     bary = torch.rand(25, 3, generator=generator, dtype=torch.float64).requires_grad_(True)
     corner = torch.randint(0, 10, (25, 3), generator=generator)
     assert torch.autograd.gradcheck(lambda t, b: fused._Interpolation.apply(t, b, corner), (table, bary))
+
+
+@pytest.mark.parametrize("per_fragment", [False, True])
+def test_lit_colour_backward_matches_finite_differences(per_fragment):
+    """The light (one, or one per fragment's frame), the ambient (one, or per fragment) and the
+    shadow visibility; cosines kept away from 0, where max(c, 0) has a kink."""
+    generator = torch.Generator().manual_seed(4)
+    count = 30
+    albedo = torch.rand(count, 3, generator=generator, dtype=torch.float64)
+    normal = torch.nn.functional.normalize(torch.randn(count, 3, generator=generator, dtype=torch.float64), dim=-1)
+    position = torch.randn(count, 3, generator=generator, dtype=torch.float64) * 0.05
+    light = torch.tensor([0.3, -0.4, 0.2], dtype=torch.float64)
+    if per_fragment:
+        light = light + 0.05 * torch.randn(count, 3, generator=generator, dtype=torch.float64)
+    to_light = torch.nn.functional.normalize(light - position, dim=-1)
+    near_kink = (normal * to_light).sum(-1, keepdim=True).abs() < 0.05
+    normal = torch.where(near_kink, to_light, normal)
+    ambient = (torch.rand(count, 1, generator=generator, dtype=torch.float64) if per_fragment
+               else torch.tensor(0.4, dtype=torch.float64))
+    visibility = torch.rand(count, 1, generator=generator, dtype=torch.float64)
+    inputs = [t.clone().requires_grad_(True) for t in (albedo, normal, position, light, ambient, visibility)]
+    assert torch.autograd.gradcheck(fused.lit_colour, inputs)
+    reference = shading.lit_colour(*inputs)
+    assert torch.allclose(fused.lit_colour(*inputs), reference, atol=1e-12)
+    assert torch.autograd.gradcheck(lambda *a: fused.lit_colour(*a[:5]), inputs[:5])   # no shadows

@@ -89,9 +89,8 @@ def test_only_requested_work_is_done(monkeypatch, fused):
     primitives = getattr(renderer, path)
     monkeypatch.setattr(renderer, path, dataclasses.replace(
         primitives, vertex_normals=forbidden, shadow_visibility=forbidden, uv_tangents=forbidden,
-        perturbed_normal=forbidden))
-    for name in ("sample_texture", "shade"):
-        monkeypatch.setattr(renderer, name, forbidden)
+        perturbed_normal=forbidden, lit_colour=forbidden))
+    monkeypatch.setattr(renderer, "sample_texture", forbidden)
     render(points, mesh, K, SIZE, SIZE, outputs=("alpha",), appearance=appearance, light=light, fused=fused)
     monkeypatch.undo()
     monkeypatch.setattr(renderer, path, dataclasses.replace(    # no normal map: no tangents

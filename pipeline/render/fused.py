@@ -237,6 +237,43 @@ class _PerturbedNormal(torch.autograd.Function):
         return grad_normal, grad_tangent, None, grad_value
 
 
+def lit_colour(albedo, normal, position, light_position, ambient, visibility=None):
+    """shading.lit_colour with a hand-written backward (a score of small operations on every
+    fragment, and their records, were a tenth of a shaded render's time)."""
+    ambient = torch.as_tensor(ambient, dtype=albedo.dtype, device=albedo.device)
+    return _LitColour.apply(albedo, normal, position, light_position, ambient, visibility)
+
+
+class _LitColour(torch.autograd.Function):
+    # forward: d = light - position; l = d / |d|; c = n . l; lit = max(c, 0) V;
+    # f = a + (1 - a) lit; colour = albedo f. Backward: the chain rule through each step, with
+    # unit(d)'s Jacobian (I - l l^T) / |d| and max's gradient where c >= 0 (as torch's clamp).
+
+    @staticmethod
+    def forward(ctx, albedo, normal, position, light_position, ambient, visibility):
+        to_light, length = _unit(light_position - position)
+        cosine = _dot(normal, to_light)
+        diffuse = cosine.clamp(min=0)
+        lit = diffuse if visibility is None else diffuse * visibility
+        factor = ambient + (1 - ambient) * lit
+        ctx.save_for_backward(albedo, normal, to_light, length, cosine, diffuse, lit, factor, ambient, visibility)
+        ctx.shapes = light_position.shape, ambient.shape
+        return albedo * factor
+
+    @staticmethod
+    def backward(ctx, grad):
+        albedo, normal, to_light, length, cosine, diffuse, lit, factor, ambient, visibility = ctx.saved_tensors
+        light_shape, ambient_shape = ctx.shapes
+        grad_factor = _dot(grad, albedo)
+        grad_lit = grad_factor * (1 - ambient)
+        grad_visibility = None if visibility is None else grad_lit * diffuse
+        grad_cosine = (grad_lit if visibility is None else grad_lit * visibility) * (cosine >= 0).to(grad.dtype)
+        grad_to_light = grad_cosine * normal
+        grad_offset = (grad_to_light - to_light * _dot(to_light, grad_to_light)) / length
+        return (grad * factor, grad_cosine * to_light, -grad_offset, grad_offset.sum_to_size(light_shape),
+                (grad_factor * (1 - lit)).sum_to_size(ambient_shape), grad_visibility)
+
+
 def vertex_normals(points, faces):
     """shading.vertex_normals with one scatter over the flattened frames."""
     batch, count = points.shape[:2]

@@ -20,7 +20,6 @@ from . import shading as reference_shading
 from . import shadow_map as reference_shadow_map
 from .antialias import EdgeTopology, antialias, edge_topology
 from .interpolate import to_image
-from .shading import shade
 from .texture import sample_texture
 
 OUTPUTS = ("alpha", "rgb", "depth", "normal", "albedo", "uv")
@@ -37,6 +36,7 @@ class Primitives:
     uv_tangents: object
     perturbed_normal: object
     shadow_visibility: object
+    lit_colour: object
     composite: object
 
 
@@ -44,13 +44,12 @@ REFERENCE = Primitives(
     reference_rasterize.rasterize, reference_interpolate.fragments,
     lambda attributes, frags, faces: [reference_interpolate.interpolate(a, frags, faces) for a in attributes],
     reference_shading.vertex_normals, reference_shading.uv_tangents, reference_shading.perturbed_normal,
-    reference_shadow_map.shadow_visibility,
+    reference_shadow_map.shadow_visibility, reference_shading.lit_colour,
     lambda values, behind, frags: torch.cat([torch.where(_covered(frags), to_image(v, frags), b)
                                              for v, b in zip(values, behind)], dim=-1))
 FUSED = Primitives(fused_ops.rasterize, fused_ops.fragments, fused_ops.interpolate_many,
                    fused_ops.vertex_normals, fused_ops.uv_tangents, fused_ops.perturbed_normal,
-                   fused_ops.shadow_visibility,
-                   fused_ops.composite)
+                   fused_ops.shadow_visibility, fused_ops.lit_colour, fused_ops.composite)
 
 
 @dataclasses.dataclass
@@ -165,12 +164,11 @@ def _lit_colour(ops, points, faces, frags, position, albedo, normal, light):
     light_position = light.position.to(points.dtype)
     if light_position.dim() == 2:
         light_position = light_position[frags.frame]
-    to_light = torch.nn.functional.normalize(light_position - position, dim=-1, eps=1e-12)
     visibility = None
     if light.shadows:
         visibility = ops.shadow_visibility(points, faces, position, frags.frame, light.position.to(points.dtype),
                                            light.shadow_resolution, light.shadow_target, light.shadow_radius)
-    return shade(albedo, normal, to_light, light.ambient, visibility)
+    return ops.lit_colour(albedo, normal, position, light_position, light.ambient, visibility)
 
 
 def _covered(frags):

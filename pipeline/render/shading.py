@@ -55,3 +55,10 @@ def shade(albedo, normal, to_light, ambient, visibility=None):
     if visibility is not None:
         diffuse = diffuse * visibility
     return albedo * (ambient + (1 - ambient) * diffuse)
+
+
+def lit_colour(albedo, normal, position, light_position, ambient, visibility=None):
+    """shade() under a point light at light_position ((3,) or (N, 3)) seen from the surface
+    points `position` (N, 3)."""
+    to_light = torch.nn.functional.normalize(light_position - position, dim=-1, eps=1e-12)
+    return shade(albedo, normal, to_light, ambient, visibility)
