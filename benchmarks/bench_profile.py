@@ -347,11 +347,11 @@ def instrumented(problem):
             uv_tangents=_ranged("normals and tangents", renderer.FUSED.uv_tangents),
             perturbed_normal=_ranged("shading", renderer.FUSED.perturbed_normal),
             shadow_visibility=_ranged("shadow map", renderer.FUSED.shadow_visibility),
+            lit_colour=_ranged("shading", renderer.FUSED.lit_colour),
             composite=_ranged("composite", renderer.FUSED.composite))),
         (fused, "rasterize", _ranged("rasterize (shadow map)", fused.rasterize)),   # shadow_visibility's own
         (renderer, "antialias", _ranged("antialias", renderer.antialias)),
         (renderer, "sample_texture", _ranged("texture lookup", renderer.sample_texture)),
-        (renderer, "shade", _ranged("shading", renderer.shade)),
         (energy, "render", _ranged("render (other)", energy.render)),
         (stage_run, "batch_energy", _ranged("losses (other)", stage_run.batch_energy)),
         (avatar.Avatar, "posed", _ranged("posing", avatar.Avatar.posed)),
