@@ -335,7 +335,9 @@ def composite(values, behind, frags: Fragments):
     """The layers' fragment values (N, C_i) over their images behind them (B, H, W, C_i), side by
     side: (B, H, W, sum C_i), written in one scatter into one image."""
     image = torch.cat([b.expand(frags.batch, frags.height, frags.width, b.shape[-1]) for b in behind], dim=-1)
-    return image.reshape(-1, image.shape[-1]).index_put((frags.pixel,), torch.cat(values, dim=-1)).view(image.shape)
+    # in place: the image is new (cat copies), and a second full-size copy costs as much as the cat
+    image.view(-1, image.shape[-1]).index_put_((frags.pixel,), torch.cat(values, dim=-1))
+    return image
 
 
 def _cross(u, v):
