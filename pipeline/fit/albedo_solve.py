@@ -31,11 +31,9 @@ import torch
 
 from ..render.renderer import render
 from ..render.texture import bilinear_texels
-from .losses import PHOTOMETRIC_EROSION, eroded_mask
 
 MIN_COVERAGE = 1.0      # bilinear weight (about one pixel's worth) a texel needs to be solved
 MIN_SHADING = 0.05      # pixels darker than this (shading of an albedo of 1) carry no colour
-MASK_EROSION = PHOTOMETRIC_EROSION   # pixels, as the photometric term's
 SMOOTHNESS = 1e-2       # neighbour pull, against the mean data weight of a solved texel
 ANCHOR = 1e-4           # the first solve's pull towards the current albedo, likewise
 WELL_SEEN = 8.0         # coverage of the texels that measure how far off the current albedo is
@@ -103,7 +101,7 @@ def _observations(problem, shadows, batch_size, size):
         images = render(vertices, avatar.mesh, clip.K, clip.height, clip.width, outputs=("rgb", "uv", "alpha"),
                         appearance=appearance, light=light, antialiased=False)
         shading = images["rgb"] * avatar.exposure_gain(batch) if problem.exposure_on else images["rgb"]
-        usable = (eroded_mask(clip.masks[batch], MASK_EROSION)[..., 0] > 0.5) & (images["alpha"][..., 0] > 0.5)
+        usable = problem.photometric_inside[batch][..., 0] & (images["alpha"][..., 0] > 0.5)   # as the photometric term
         if clip.valid is not None:
             usable = usable & (clip.valid[..., 0] > 0.5)
         usable = usable & (shading.min(-1).values > MIN_SHADING)

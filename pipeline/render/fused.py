@@ -9,8 +9,8 @@ only how the work is laid out for a CPU:
 - a boolean selection is turned into indices once and reused, not once per tensor;
 - the rasteriser enumerates candidate pixels only for faces that have any;
 - attributes that share their corner indices are interpolated in one pass;
-- the barycentrics, the interpolation and the perturbed normal have hand-written backward
-  passes in place of autograd's record of their many small operations;
+- the barycentrics, the interpolation, the perturbed normal and the lit colour have
+  hand-written backward passes in place of autograd's record of their many small operations;
 - the shadow test reads its 3x3 texels in one gather;
 - the images' layers are written in one scatter over what lies behind them.
 The rasteriser does the reference's arithmetic operation for operation, so visibility (which
