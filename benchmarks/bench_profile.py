@@ -348,9 +348,9 @@ def instrumented(problem):
             perturbed_normal=_ranged("shading", renderer.FUSED.perturbed_normal),
             shadow_visibility=_ranged("shadow map", renderer.FUSED.shadow_visibility),
             lit_colour=_ranged("shading", renderer.FUSED.lit_colour),
-            composite=_ranged("composite", renderer.FUSED.composite))),
+            composite=_ranged("composite", renderer.FUSED.composite),
+            antialias=_ranged("antialias", renderer.FUSED.antialias))),
         (fused, "rasterize", _ranged("rasterize (shadow map)", fused.rasterize)),   # shadow_visibility's own
-        (renderer, "antialias", _ranged("antialias", renderer.antialias)),
         (renderer, "sample_texture", _ranged("texture lookup", renderer.sample_texture)),
         (energy, "render", _ranged("render (other)", energy.render)),
         (stage_run, "batch_energy", _ranged("losses (other)", stage_run.batch_energy)),

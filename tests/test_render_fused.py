@@ -139,3 +139,15 @@ def test_lit_colour_backward_matches_finite_differences(per_fragment):
     reference = shading.lit_colour(*inputs)
     assert torch.allclose(fused.lit_colour(*inputs), reference, atol=1e-12)
     assert torch.autograd.gradcheck(lambda *a: fused.lit_colour(*a[:5]), inputs[:5])   # no shadows
+
+
+def test_antialias_blend_backward_matches_finite_differences():
+    """Crossings that share pixels (a pixel both blended into and read from, twice), both ways."""
+    generator = torch.Generator().manual_seed(5)
+    flat = torch.rand(12, 4, generator=generator, dtype=torch.float64).requires_grad_(True)
+    weight = torch.rand(20, 1, generator=generator, dtype=torch.float64).requires_grad_(True)
+    inside = torch.randint(0, 12, (20,), generator=generator)
+    outside = torch.randint(0, 12, (20,), generator=generator)
+    spills_out = torch.rand(20, generator=generator) < 0.5
+    assert torch.autograd.gradcheck(lambda f, w: fused._Blend.apply(f, w, inside, outside, spills_out),
+                                    (flat, weight))

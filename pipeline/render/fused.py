@@ -12,7 +12,9 @@ only how the work is laid out for a CPU:
 - the barycentrics, the interpolation, the perturbed normal and the lit colour have
   hand-written backward passes in place of autograd's record of their many small operations;
 - the shadow test reads its 3x3 texels in one gather;
-- the images' layers are written in one scatter over what lies behind them.
+- the images' layers are written in one scatter over what lies behind them;
+- the antialiasing blend has a backward that writes the image's gradient once, instead of a
+  zero image per gather.
 The rasteriser does the reference's arithmetic operation for operation, so visibility (which
 face wins a pixel, at what depth) is identical; elsewhere sums may round in another order.
 """
@@ -20,6 +22,7 @@ from __future__ import annotations
 
 import torch
 
+from .antialias import EdgeTopology, silhouette_crossings
 from .interpolate import Fragments
 from .rasterize import _FACE_BITS, NEAR, Rasterization, face_boxes, project
 from .shading import face_tangents
@@ -112,7 +115,7 @@ class _Barycentrics(torch.autograd.Function):
         w2 = 1.0 - w0 - w1
         screen = torch.stack([w0, w1, w2], dim=-1)
         weighted = screen * corners[..., 2]
-        total = weighted.sum(-1, keepdim=True)
+        total = weighted[:, :1] + weighted[:, 1:2] + weighted[:, 2:3]
         bary = weighted / total
         ctx.save_for_backward(corners, centre, screen, bary, total, area, degenerate)
         return bary
@@ -120,7 +123,7 @@ class _Barycentrics(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad):
         corners, centre, screen, bary, total, area, degenerate = ctx.saved_tensors
-        grad_weighted = (grad - (grad * bary).sum(-1, keepdim=True)) / total      # (N, 3)
+        grad_weighted = (grad - _dot(grad, bary)) / total                        # (N, 3)
         grad_inverse_z = grad_weighted * screen
         grad_screen = grad_weighted * corners[..., 2]
         grad_w0 = grad_screen[:, 0] - grad_screen[:, 2]                           # w2 = 1 - w0 - w1
@@ -174,7 +177,10 @@ class _Interpolation(torch.autograd.Function):
     def forward(ctx, table, bary, corner):
         ctx.save_for_backward(table, bary, corner)
         values = table.index_select(0, corner.reshape(-1)).view(-1, 3, table.shape[1])
-        return torch.bmm(bary.unsqueeze(1), values).squeeze(1)
+        # corner by corner: twice as fast on a CPU as a batch of (1, 3) x (3, C) products
+        out = values[:, 0] * bary[:, :1]
+        out.addcmul_(values[:, 1], bary[:, 1:2])
+        return out.addcmul_(values[:, 2], bary[:, 2:3])
 
     @staticmethod
     def backward(ctx, grad):
@@ -203,7 +209,9 @@ def _unit(vector, eps=1e-12):
 
 
 def _dot(u, v):
-    return (u * v).sum(-1, keepdim=True)
+    """(N, 1): the dot products of rows of (N, 3); component by component, three times as fast
+    on a CPU as a reduction over a last dimension of three."""
+    return u[:, :1] * v[:, :1] + u[:, 1:2] * v[:, 1:2] + u[:, 2:3] * v[:, 2:3]
 
 
 class _PerturbedNormal(torch.autograd.Function):
@@ -335,9 +343,73 @@ def composite(values, behind, frags: Fragments):
     """The layers' fragment values (N, C_i) over their images behind them (B, H, W, C_i), side by
     side: (B, H, W, sum C_i), written in one scatter into one image."""
     image = torch.cat([b.expand(frags.batch, frags.height, frags.width, b.shape[-1]) for b in behind], dim=-1)
-    # in place: the image is new (cat copies), and a second full-size copy costs as much as the cat
-    image.view(-1, image.shape[-1]).index_put_((frags.pixel,), torch.cat(values, dim=-1))
-    return image
+    return _Scatter.apply(image, torch.cat(values, dim=-1), frags.pixel)
+
+
+class _Scatter(torch.autograd.Function):
+    """image (B, H, W, C) with its pixels `pixel` (N,) set to values (N, C), in place: the image
+    is new (cat copies it), and a second full-size copy would cost as much as the cat. The
+    backward gathers the values' gradient; autograd's record of an in-place write into a view
+    copied the whole image's gradient twice."""
+
+    @staticmethod
+    def forward(ctx, image, values, pixel):
+        ctx.mark_dirty(image)
+        ctx.save_for_backward(pixel)
+        image.view(-1, image.shape[-1]).index_copy_(0, pixel, values)
+        return image
+
+    @staticmethod
+    def backward(ctx, grad):
+        pixel, = ctx.saved_tensors
+        flat = grad.reshape(-1, grad.shape[-1])
+        grad_image = grad_values = None
+        if ctx.needs_input_grad[0]:
+            grad_image = flat.index_fill(0, pixel, 0).view_as(grad)
+        if ctx.needs_input_grad[1]:
+            grad_values = flat.index_select(0, pixel)
+        return grad_image, grad_values, None
+
+
+def antialias(image, points, K, rast: Rasterization, topology: EdgeTopology):
+    """antialias.antialias: the same crossings and blend, with a hand-written backward."""
+    batch, height, width, channels = image.shape
+    crossings = silhouette_crossings(points, K, rast, topology)
+    if crossings is None:
+        return image
+    inside, outside, coverage = crossings
+    spills_out = coverage > 0.5
+    weight = (coverage - 0.5).abs().unsqueeze(1)
+    return _Blend.apply(image.reshape(-1, channels), weight, inside, outside, spills_out).view(
+        batch, height, width, channels)
+
+
+class _Blend(torch.autograd.Function):
+    # forward, as antialias.antialias: where an edge spills out, the outside pixel gains
+    # w (in - out); otherwise the inside pixel gains w (out - in). Backward: the image's gradient
+    # passes through, plus +-w g at the two pixels of each crossing, in one scatter; autograd's
+    # record of the two gathers made a zero image for each.
+
+    @staticmethod
+    def forward(ctx, flat, weight, inside, outside, spills_out):
+        target = torch.where(spills_out, outside, inside)
+        source = torch.where(spills_out, inside, outside)
+        delta = flat.index_select(0, source) - flat.index_select(0, target)
+        ctx.save_for_backward(weight, source, target, delta)
+        return flat.index_add(0, target, weight * delta)
+
+    @staticmethod
+    def backward(ctx, grad):
+        weight, source, target, delta = ctx.saved_tensors
+        grad_target = grad.index_select(0, target)
+        grad_flat = grad_weight = None
+        if ctx.needs_input_grad[0]:
+            # out[target] = flat[target] + w (flat[source] - flat[target])
+            spread = grad_target * weight
+            grad_flat = grad.clone().index_add_(0, torch.cat([source, target]), torch.cat([spread, -spread]))
+        if ctx.needs_input_grad[1]:
+            grad_weight = (grad_target * delta).sum(-1, keepdim=True)
+        return grad_flat, grad_weight, None, None, None
 
 
 def _cross(u, v):

@@ -18,7 +18,8 @@ from . import interpolate as reference_interpolate
 from . import rasterize as reference_rasterize
 from . import shading as reference_shading
 from . import shadow_map as reference_shadow_map
-from .antialias import EdgeTopology, antialias, edge_topology
+from .antialias import EdgeTopology, edge_topology
+from .antialias import antialias as reference_antialias
 from .interpolate import to_image
 from .texture import sample_texture
 
@@ -38,6 +39,7 @@ class Primitives:
     shadow_visibility: object
     lit_colour: object
     composite: object
+    antialias: object
 
 
 REFERENCE = Primitives(
@@ -46,10 +48,12 @@ REFERENCE = Primitives(
     reference_shading.vertex_normals, reference_shading.uv_tangents, reference_shading.perturbed_normal,
     reference_shadow_map.shadow_visibility, reference_shading.lit_colour,
     lambda values, behind, frags: torch.cat([torch.where(_covered(frags), to_image(v, frags), b)
-                                             for v, b in zip(values, behind)], dim=-1))
+                                             for v, b in zip(values, behind)], dim=-1),
+    reference_antialias)
 FUSED = Primitives(fused_ops.rasterize, fused_ops.fragments, fused_ops.interpolate_many,
                    fused_ops.vertex_normals, fused_ops.uv_tangents, fused_ops.perturbed_normal,
-                   fused_ops.shadow_visibility, fused_ops.lit_colour, fused_ops.composite)
+                   fused_ops.shadow_visibility, fused_ops.lit_colour, fused_ops.composite,
+                   fused_ops.antialias)
 
 
 @dataclasses.dataclass
@@ -152,7 +156,7 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
     if layers:
         stacked = ops.composite([values for _, values, _ in layers], [behind for _, _, behind in layers], frags)
         if antialiased:
-            stacked = antialias(stacked, points, K, rast, mesh.edges())
+            stacked = ops.antialias(stacked, points, K, rast, mesh.edges())
         # split, not slices: the backward of a slice fills a zero image as large as the stack
         # for each layer; that of a split writes one
         parts = stacked.split([values.shape[-1] for _, values, _ in layers], dim=-1)
