@@ -151,3 +151,44 @@ def test_antialias_blend_backward_matches_finite_differences():
     spills_out = torch.rand(20, generator=generator) < 0.5
     assert torch.autograd.gradcheck(lambda f, w: fused._Blend.apply(f, w, inside, outside, spills_out),
                                     (flat, weight))
+
+
+def test_soft_shadow_test_backward_matches_finite_differences():
+    """Receivers near the occluders' depths (where the sigmoid has a slope), texels repeated."""
+    generator = torch.Generator().manual_seed(6)
+    depth_map = (0.5 + 0.01 * torch.rand(16, generator=generator, dtype=torch.float64)).requires_grad_(True)
+    texels = torch.randint(0, 16, (10, 9), generator=generator)
+    depth = (0.505 + 0.01 * torch.rand(10, 1, generator=generator, dtype=torch.float64)).requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda m, z: fused._SoftShadowTest.apply(m, texels, z), (depth_map, depth))
+
+
+def test_shadow_visibility_agrees_where_points_fall_off_the_map(hand_scene):
+    """A shadow camera framing only part of the hand: surface points project onto the map's
+    border texels and beyond it, where the reference clamps into its padding and the fused
+    path reads a wider padding. Values and gradients agree."""
+    from pipeline.render import interpolate, shadow_map
+
+    points, mesh, _, _, K = hand_scene
+    light = torch.tensor([0.25, -0.3, 0.1], dtype=torch.float64)
+    target = points[0].mean(0) + torch.tensor([0.02, 0.0, 0.0], dtype=torch.float64)
+    results = []
+    for path in ("reference", "fused"):
+        leaf = points.clone().requires_grad_(True)
+        rast = rasterize.rasterize(leaf.detach(), mesh.faces, K, SIZE, SIZE)
+        frags = interpolate.fragments(leaf, mesh.faces, K, rast)
+        position = interpolate.interpolate(leaf, frags, mesh.faces)
+        if path == "reference":
+            visibility = shadow_map.shadow_visibility(leaf, mesh.faces, position, frags.frame, light, 32, target, 0.03)
+        else:
+            visibility = fused.shadow_visibility(leaf, mesh.faces, position, frags, light, 32, target, 0.03)
+        visibility.sum().backward()
+        results.append((visibility.detach(), leaf.grad))
+        if path == "reference":   # some points beyond the map's edge see its empty padding
+            rotation, eye, light_K, _ = shadow_map.light_view(leaf.detach(), light, 32, target, 0.03)
+            receiver = torch.einsum("nij,nj->ni", rotation[frags.frame], position.detach() - eye[frags.frame])
+            texel = rasterize.project(receiver.unsqueeze(0), light_K)[0]
+            assert ((texel < 0) | (texel >= 32)).any(1).float().mean() > 0.05
+    (reference, reference_grad), (fused_values, fused_grad) = results
+    assert reference.min() < 0.5 < reference.max() and reference_grad.abs().max() > 0
+    assert torch.allclose(fused_values, reference, atol=1e-9, rtol=0)
+    assert torch.allclose(fused_grad, reference_grad, atol=1e-9 * reference_grad.abs().max(), rtol=0)

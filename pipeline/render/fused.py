@@ -313,30 +313,56 @@ def _corners_of_every_frame(faces, batch, count):
     return (faces.t().unsqueeze(1) + frame_start[None, :, None]).reshape(3, -1)
 
 
-def shadow_visibility(points, faces, surface_points, surface_frame, light_position, resolution=256,
+def shadow_visibility(points, faces, surface_points, surface_frags: Fragments, light_position, resolution=256,
                       target=None, radius=None):
-    """shadow_map.shadow_visibility on the fused primitives, the 3x3 texels in one gather."""
+    """shadow_map.shadow_visibility on the fused primitives, for the surface points that the
+    camera's fragments `surface_frags` interpolate (`surface_points` is not read: the points'
+    positions in the light's frame are interpolated from the mesh's rather than transformed
+    one by one, the same numbers since the barycentrics sum to 1, for a gather of three
+    corners in place of a 3x3 matrix per point); the soft test on the 3x3 texels is one
+    primitive with its own backward."""
     batch = points.shape[0]
     rotation, eye, K, in_light = light_view(points, light_position, resolution, target, radius)
     rast = rasterize(in_light, faces, K, resolution, resolution)
     frags = fragments(in_light, faces, K, rast)
-    padded = resolution + 2
+    # two texels of padding: the 3x3 texels around any texel from -1 to `resolution` lie inside,
+    # and read the empty depth where the reference clamps to its one texel of padding
+    padded = resolution + 4
     depth_map = torch.full((batch, padded, padded), EMPTY_DEPTH, dtype=points.dtype, device=points.device)
     row, column = frags.pixel % (resolution * resolution) // resolution, frags.pixel % resolution
-    inner = (frags.frame * padded + row + 1) * padded + column + 1
+    inner = (frags.frame * padded + row + 2) * padded + column + 2
     depth_map = depth_map.reshape(-1).index_put((inner,), interpolate(in_light[..., 2:], frags, faces)[:, 0])
-    offset = surface_points - eye.index_select(0, surface_frame)
-    receiver = torch.bmm(rotation.index_select(0, surface_frame), offset.unsqueeze(-1)).squeeze(-1)
-    texel = project(receiver.unsqueeze(0), K)[0]
-    column = torch.floor(texel[:, 0]).long().clamp(-1, resolution) + 1   # +1: padding
-    row = torch.floor(texel[:, 1]).long().clamp(-1, resolution) + 1
-    step = torch.tensor([-1, 0, 1], device=points.device)
-    rows = (row.unsqueeze(1) + step).clamp(0, padded - 1)                # (N, 3)
-    columns = (column.unsqueeze(1) + step).clamp(0, padded - 1)
-    texels = ((surface_frame * padded).unsqueeze(1) + rows).unsqueeze(2) * padded + columns.unsqueeze(1)
-    occluder = depth_map.index_select(0, texels.reshape(-1)).view(-1, 9)
-    visibility = torch.sigmoid(SHARPNESS * (occluder - (receiver[:, 2:3] - BIAS))).sum(1)
-    return (visibility / 9.0).unsqueeze(1)
+    receiver = interpolate(in_light, surface_frags, faces)
+    with torch.no_grad():
+        texel = project(receiver.unsqueeze(0), K)[0]
+        column = torch.floor(texel[:, 0]).long().clamp(-1, resolution) + 2
+        row = torch.floor(texel[:, 1]).long().clamp(-1, resolution) + 2
+        step = torch.tensor([-1, 0, 1], device=points.device)
+        around = (step.unsqueeze(1) * padded + step).reshape(-1)             # (9,) flat offsets
+        texels = ((surface_frags.frame * padded + row) * padded + column).unsqueeze(1) + around
+    return _SoftShadowTest.apply(depth_map, texels, receiver[:, 2:3])
+
+
+class _SoftShadowTest(torch.autograd.Function):
+    """V = mean over the 9 texels of sigmoid(SHARPNESS (z_map[texel] - (z - BIAS))), (N, 1), from
+    the flat depth map, the texels (N, 9) and the receivers' depths z (N, 1); the sigmoids are
+    kept for a backward of two passes."""
+
+    @staticmethod
+    def forward(ctx, depth_map, texels, depth):
+        soft = depth_map.index_select(0, texels.reshape(-1)).view(-1, 9)
+        soft.sub_(depth - BIAS).mul_(SHARPNESS).sigmoid_()
+        ctx.save_for_backward(texels, soft)
+        ctx.texels_in_map = len(depth_map)
+        return soft.sum(1, keepdim=True) / 9.0
+
+    @staticmethod
+    def backward(ctx, grad):
+        texels, soft = ctx.saved_tensors
+        scaled = soft * (grad * (SHARPNESS / 9.0))
+        slope = torch.addcmul(scaled, scaled, soft, value=-1)                    # s (1 - s) g, (N, 9)
+        grad_map = slope.new_zeros(ctx.texels_in_map).index_add_(0, texels.reshape(-1), slope.reshape(-1))
+        return grad_map, None, -slope.sum(1, keepdim=True)
 
 
 def composite(values, behind, frags: Fragments):

@@ -46,7 +46,8 @@ REFERENCE = Primitives(
     reference_rasterize.rasterize, reference_interpolate.fragments,
     lambda attributes, frags, faces: [reference_interpolate.interpolate(a, frags, faces) for a in attributes],
     reference_shading.vertex_normals, reference_shading.uv_tangents, reference_shading.perturbed_normal,
-    reference_shadow_map.shadow_visibility, reference_shading.lit_colour,
+    lambda points, faces, position, frags, *light: reference_shadow_map.shadow_visibility(
+        points, faces, position, frags.frame, *light), reference_shading.lit_colour,
     lambda values, behind, frags: torch.cat([torch.where(_covered(frags), to_image(v, frags), b)
                                              for v, b in zip(values, behind)], dim=-1),
     reference_antialias)
@@ -170,7 +171,7 @@ def _lit_colour(ops, points, faces, frags, position, albedo, normal, light):
         light_position = light_position[frags.frame]
     visibility = None
     if light.shadows:
-        visibility = ops.shadow_visibility(points, faces, position, frags.frame, light.position.to(points.dtype),
+        visibility = ops.shadow_visibility(points, faces, position, frags, light.position.to(points.dtype),
                                            light.shadow_resolution, light.shadow_target, light.shadow_radius)
     return ops.lit_colour(albedo, normal, position, light_position, light.ambient, visibility)
 
