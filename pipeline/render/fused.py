@@ -12,9 +12,9 @@ only how the work is laid out for a CPU:
 - the barycentrics, the interpolation, the perturbed normal and the lit colour have
   hand-written backward passes in place of autograd's record of their many small operations;
 - the shadow test reads its 3x3 texels in one gather;
-- the images' layers are written in one scatter over what lies behind them;
-- the antialiasing blend has a backward that writes the image's gradient once, instead of a
-  zero image per gather.
+- each image is written in one scatter over a copy of what lies behind it;
+- the antialiasing finds the silhouette crossings once for all images, and its blend has a
+  backward that writes the image's gradient once, instead of a zero image per gather.
 The rasteriser does the reference's arithmetic operation for operation, so visibility (which
 face wins a pixel, at what depth) is identical; elsewhere sums may round in another order.
 """
@@ -366,17 +366,17 @@ class _SoftShadowTest(torch.autograd.Function):
 
 
 def composite(values, behind, frags: Fragments):
-    """The layers' fragment values (N, C_i) over their images behind them (B, H, W, C_i), side by
-    side: (B, H, W, sum C_i), written in one scatter into one image."""
-    image = torch.cat([b.expand(frags.batch, frags.height, frags.width, b.shape[-1]) for b in behind], dim=-1)
-    return _Scatter.apply(image, torch.cat(values, dim=-1), frags.pixel)
+    """Each layer's fragment values (N, C_i) over the image behind it (B, H, W, C_i): a list of
+    images, each written in one scatter into its own copy of what lies behind."""
+    shape = (frags.batch, frags.height, frags.width)
+    return [_Scatter.apply(b.expand(*shape, b.shape[-1]).clone(memory_format=torch.contiguous_format), v, frags.pixel)
+            for v, b in zip(values, behind)]
 
 
 class _Scatter(torch.autograd.Function):
     """image (B, H, W, C) with its pixels `pixel` (N,) set to values (N, C), in place: the image
-    is new (cat copies it), and a second full-size copy would cost as much as the cat. The
-    backward gathers the values' gradient; autograd's record of an in-place write into a view
-    copied the whole image's gradient twice."""
+    is a new copy, and a second would cost as much. The backward gathers the values' gradient;
+    autograd's record of an in-place write into a view copied the whole image's gradient twice."""
 
     @staticmethod
     def forward(ctx, image, values, pixel):
@@ -397,17 +397,17 @@ class _Scatter(torch.autograd.Function):
         return grad_image, grad_values, None
 
 
-def antialias(image, points, K, rast: Rasterization, topology: EdgeTopology):
-    """antialias.antialias: the same crossings and blend, with a hand-written backward."""
-    batch, height, width, channels = image.shape
+def antialias(images, points, K, rast: Rasterization, topology: EdgeTopology):
+    """antialias.antialias of each image (B, H, W, C_i) of a list: the crossings found once, the
+    same blend with a hand-written backward."""
     crossings = silhouette_crossings(points, K, rast, topology)
     if crossings is None:
-        return image
+        return images
     inside, outside, coverage = crossings
     spills_out = coverage > 0.5
     weight = (coverage - 0.5).abs().unsqueeze(1)
-    return _Blend.apply(image.reshape(-1, channels), weight, inside, outside, spills_out).view(
-        batch, height, width, channels)
+    return [_Blend.apply(image.reshape(-1, image.shape[-1]), weight, inside, outside, spills_out).view_as(image)
+            for image in images]
 
 
 class _Blend(torch.autograd.Function):

@@ -48,9 +48,8 @@ REFERENCE = Primitives(
     reference_shading.vertex_normals, reference_shading.uv_tangents, reference_shading.perturbed_normal,
     lambda points, faces, position, frags, *light: reference_shadow_map.shadow_visibility(
         points, faces, position, frags.frame, *light), reference_shading.lit_colour,
-    lambda values, behind, frags: torch.cat([torch.where(_covered(frags), to_image(v, frags), b)
-                                             for v, b in zip(values, behind)], dim=-1),
-    reference_antialias)
+    lambda values, behind, frags: [torch.where(_covered(frags), to_image(v, frags), b) for v, b in zip(values, behind)],
+    lambda images, *geometry: [reference_antialias(image, *geometry) for image in images])
 FUSED = Primitives(fused_ops.rasterize, fused_ops.fragments, fused_ops.interpolate_many,
                    fused_ops.vertex_normals, fused_ops.uv_tangents, fused_ops.perturbed_normal,
                    fused_ops.shadow_visibility, fused_ops.lit_colour, fused_ops.composite,
@@ -155,13 +154,10 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
         layers.append(("alpha", ones, torch.zeros(1, dtype=points.dtype, device=points.device).expand(
             points.shape[0], height, width, 1)))
     if layers:
-        stacked = ops.composite([values for _, values, _ in layers], [behind for _, _, behind in layers], frags)
+        images = ops.composite([values for _, values, _ in layers], [behind for _, _, behind in layers], frags)
         if antialiased:
-            stacked = ops.antialias(stacked, points, K, rast, mesh.edges())
-        # split, not slices: the backward of a slice fills a zero image as large as the stack
-        # for each layer; that of a split writes one
-        parts = stacked.split([values.shape[-1] for _, values, _ in layers], dim=-1)
-        result.update((name, part) for (name, _, _), part in zip(layers, parts))
+            images = ops.antialias(images, points, K, rast, mesh.edges())
+        result.update((name, image) for (name, _, _), image in zip(layers, images))
     return result
 
 
