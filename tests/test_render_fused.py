@@ -192,3 +192,33 @@ def test_shadow_visibility_agrees_where_points_fall_off_the_map(hand_scene):
     assert reference.min() < 0.5 < reference.max() and reference_grad.abs().max() > 0
     assert torch.allclose(fused_values, reference, atol=1e-9, rtol=0)
     assert torch.allclose(fused_grad, reference_grad, atol=1e-9 * reference_grad.abs().max(), rtol=0)
+
+
+@pytest.mark.parametrize("path", [rasterize.rasterize, fused.rasterize])
+def test_rasteriser_depth_is_the_planes_along_each_pixel_ray(path):
+    """Two large tilted triangles (boxes of hundreds of pixels, where the inverse depth is stepped
+    furthest from each box's first pixel) in float32: every covered pixel's depth is the exact
+    ray-plane intersection, and the coverage is the triangles' analytic inside test."""
+    size = 256
+    K = intrinsics(300.0, size, size).float()
+    quad = torch.tensor([[-0.2, -0.2, 0.6], [0.2, -0.2, 0.9], [0.2, 0.2, 1.0], [-0.2, 0.2, 0.7]])
+    faces = torch.tensor([[0, 2, 1], [0, 3, 2]])      # front-facing: negative signed area with y down
+    rast = path(quad.unsqueeze(0), faces, K, size, size)
+    normal = torch.cross(quad[1] - quad[0], quad[2] - quad[0], dim=0).double()
+    v, u = torch.meshgrid(torch.arange(size) + 0.5, torch.arange(size) + 0.5, indexing="ij")
+    rays = torch.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], torch.ones_like(u)], dim=-1).double()
+    exact = (normal @ quad[0].double()) / (rays @ normal)          # z along each ray (its z is 1)
+    covered = rast.face[0] >= 0
+    assert covered.sum() > 10000
+    assert torch.allclose(rast.depth[0][covered].double(), exact[covered], rtol=2e-6, atol=0)
+    projected = rasterize.project(quad.unsqueeze(0), K)[0].double()
+    pixel = torch.stack([u, v], dim=-1).double()
+    strictly_inside = _strictly_inside(pixel, *projected[[0, 2, 1]]) | _strictly_inside(pixel, *projected[[0, 3, 2]])
+    assert covered[strictly_inside].all()
+
+
+def _strictly_inside(pixel, a, b, c):
+    """(H, W) bool: pixel centres inside triangle a, b, c by a margin that rounding cannot cross."""
+    values = torch.stack([(q[0] - p[0]) * (pixel[..., 1] - p[1]) - (q[1] - p[1]) * (pixel[..., 0] - p[0])
+                          for p, q in [(b, c), (c, a), (a, b)]])
+    return values.le(-1e-3).all(0) | values.ge(1e-3).all(0)

@@ -24,7 +24,7 @@ import torch
 
 from .antialias import EdgeTopology, silhouette_crossings
 from .interpolate import Fragments
-from .rasterize import _FACE_BITS, NEAR, Rasterization, face_boxes, project
+from .rasterize import _FACE_BITS, NEAR, Rasterization, candidate_test, face_boxes, face_planes, project
 from .shading import face_tangents
 from .shadow_map import BIAS, EMPTY_DEPTH, SHARPNESS, light_view
 
@@ -42,33 +42,28 @@ def rasterize(points, faces, K, height, width, cull_backfaces=True, near=NEAR):
     if len(live) == 0:
         return Rasterization(face_map.view(batch, height, width), depth.view(batch, height, width), height, width)
     count = count.index_select(0, live)
-    # per live face, one row each: the edge vectors are differences the reference takes per
-    # candidate from the same numbers, so they round the same
-    e12, e20 = p2 - p1, p0 - p2
-    face_rows = [p1[..., 0], p1[..., 1], p2[..., 0], p2[..., 1], e12[..., 0], e12[..., 1], e20[..., 0], e20[..., 1],
-                 area, z0, z1, z2, x0, y0]
-    face_rows = [row.reshape(-1).index_select(0, live) for row in face_rows]
-    box_width = box_w.reshape(-1).index_select(0, live).int()
+    corners = [p.reshape(-1, 2).index_select(0, live) for p in (p0, p1, p2)]
+    planes = face_planes(*corners, *(row.reshape(-1).index_select(0, live) for row in (z0, z1, z2, area, x0, y0)))
+    hw = height * width
+    frame_start = torch.arange(batch, device=device).repeat_interleave(num_faces) * hw
+    first_pixel = (frame_start + (y0.reshape(-1) * width + x0.reshape(-1)).long()).index_select(0, live)
+    box_width = box_w.reshape(-1).index_select(0, live)
     # one candidate per (live face, pixel in its box)
     owner = torch.repeat_interleave(torch.arange(len(live), device=device), count)
     start = torch.cumsum(count, 0) - count
-    offset = (torch.arange(len(owner), device=device) - torch.repeat_interleave(start, count)).int()
-    bw = torch.repeat_interleave(box_width, count)
-    p1x, p1y, p2x, p2y, e12x, e12y, e20x, e20y, signed_area, z0c, z1c, z2c, x0c, y0c = (
-        row.index_select(0, owner) for row in face_rows)      # one contiguous gather per row: fastest on a CPU
-    cx = x0c + (offset % bw).to(dtype) + 0.5                          # pixel centres (whole numbers + 0.5)
-    cy = y0c + torch.div(offset, bw, rounding_mode="floor").to(dtype) + 0.5
-    w0 = (e12x * (cy - p1y) - e12y * (cx - p1x)) / signed_area
-    w1 = (e20x * (cy - p2y) - e20y * (cx - p2x)) / signed_area
-    w2 = 1.0 - w0 - w1
-    inverse_depth = w0 / z0c + w1 / z1c + w2 / z2c
-    inside = torch.nonzero((w0 >= 0) & (w1 >= 0) & (w2 >= 0) & (inverse_depth > 0)).squeeze(1)
+    offset = torch.arange(len(owner), device=device) - torch.repeat_interleave(start, count)
+    # the pixel's row and column in the box, in floating point (whole numbers, exact: a box has
+    # far fewer than 2^23 pixels); a CPU divides integers several times slower
+    offset, bw = offset.to(dtype), torch.repeat_interleave(box_width, count).to(dtype)
+    dy = torch.floor((offset + 0.5) / bw)
+    dx = offset - dy * bw
+    inside, inverse_depth = candidate_test([plane.index_select(0, owner) for plane in planes], dx, dy)
+    inside = torch.nonzero(inside).squeeze(1)                         # one contiguous gather per row above
     cand_depth = 1.0 / inverse_depth.index_select(0, inside)
-    global_face = live.index_select(0, owner.index_select(0, inside))
-    frame = global_face // num_faces
-    face_index = global_face % num_faces
-    px, py = cx.index_select(0, inside).long(), cy.index_select(0, inside).long()
-    pixel = (frame * height + py) * width + px
+    inside_owner = owner.index_select(0, inside)
+    face_index = live.index_select(0, inside_owner) % num_faces
+    pixel = (first_pixel.index_select(0, inside_owner)
+             + (dy.index_select(0, inside) * width + dx.index_select(0, inside)).long())
     depth_bits = cand_depth.float().view(torch.int32).long()
     key = (depth_bits << _FACE_BITS) | face_index
     empty = torch.iinfo(torch.long).max

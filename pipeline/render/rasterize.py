@@ -2,7 +2,9 @@
 
 Pure PyTorch, batched over frames, on any device. Every face enumerates the pixel centres in
 its screen bounding box; an inside test with edge functions and a depth-keyed scatter-min
-keep the nearest face per pixel. Faces with a vertex at or behind the near plane are culled
+keep the nearest face per pixel. The edge functions and the inverse depth are affine in the
+image, so each face's are evaluated once at the first pixel centre of its box and stepped from
+there by whole pixels (as hardware rasterisers do), a few operations per candidate pixel. Faces with a vertex at or behind the near plane are culled
 (never clipped), so geometry behind or crossing the camera never produces garbage.
 
 Pixel convention (OpenCV): pixel (i, j) has its centre at (i + 0.5, j + 0.5) in the image
@@ -51,7 +53,7 @@ def project(points, K):
 
 def front_facing(points, faces):
     """(B, F) bool: the face's outward normal points towards the camera at the origin."""
-    v0, v1, v2 = (points[:, faces[:, k]] for k in range(3))
+    v0, v1, v2 = (points.index_select(1, faces[:, k]) for k in range(3))
     normal = torch.cross(v1 - v0, v2 - v0, dim=-1)
     return (normal * v0).sum(-1) < 0
 
@@ -84,6 +86,33 @@ def face_boxes(points, faces, K, height, width, cull_backfaces=True, near=NEAR):
     return p0, p1, p2, z0, z1, z2, area, x0, y0, box_w, count
 
 
+def face_planes(p0, p1, p2, z0, z1, z2, area, x0, y0):
+    """Per face (B, F): the barycentric weights w0, w1 of the corners p0, p1 and the inverse
+    depth 1/z at the first pixel centre (x0 + 0.5, y0 + 0.5) of the face's box, each with its
+    steps per pixel in x and y: nine tensors (w0, w0_x, w0_y, w1, w1_x, w1_y, d, d_x, d_y).
+
+    Under a perspective camera 1/z is affine in the image: 1/z2 + w0 (1/z0 - 1/z2) + w1 (1/z1 - 1/z2)."""
+    first = torch.stack([x0 + 0.5, y0 + 0.5], dim=-1)
+    w0 = _edge(p1, p2, first) / area
+    w1 = _edge(p2, p0, first) / area
+    w0_x, w0_y = (p1[..., 1] - p2[..., 1]) / area, (p2[..., 0] - p1[..., 0]) / area
+    w1_x, w1_y = (p2[..., 1] - p0[..., 1]) / area, (p0[..., 0] - p2[..., 0]) / area
+    u0, u1 = 1.0 / z0 - 1.0 / z2, 1.0 / z1 - 1.0 / z2
+    d = 1.0 / z2 + w0 * u0 + w1 * u1
+    return w0, w0_x, w0_y, w1, w1_x, w1_y, d, w0_x * u0 + w1_x * u1, w0_y * u0 + w1_y * u1
+
+
+def candidate_test(planes, dx, dy):
+    """For candidates at whole-pixel offsets dx, dy (float) from their face's first pixel centre,
+    each with its face's nine `planes` rows: (inside the face and in front of the camera, bool;
+    the inverse depth there)."""
+    w0, w0_x, w0_y, w1, w1_x, w1_y, d, d_x, d_y = planes
+    w0 = w0 + dx * w0_x + dy * w0_y
+    w1 = w1 + dx * w1_x + dy * w1_y
+    inverse_depth = d + dx * d_x + dy * d_y
+    return (w0 >= 0) & (w1 >= 0) & (w0 + w1 <= 1) & (inverse_depth > 0), inverse_depth
+
+
 @torch.no_grad()
 def rasterize(points, faces, K, height, width, cull_backfaces=True, near=NEAR):
     """Nearest face and depth at every pixel centre.
@@ -101,27 +130,21 @@ def rasterize(points, faces, K, height, width, cull_backfaces=True, near=NEAR):
     total = int(count.sum())
     if total == 0:
         return Rasterization(face_map.view(batch, height, width), depth.view(batch, height, width), height, width)
+    planes = face_planes(p0, p1, p2, z0, z1, z2, area, x0, y0)
     # one candidate per (face, pixel in its box)
     owner = torch.repeat_interleave(torch.arange(batch * num_faces, device=device), count)
     start = torch.cumsum(count, 0) - count
     offset = torch.arange(total, device=device) - start[owner]
     bw = box_w.reshape(-1).long()[owner]
-    px = x0.reshape(-1).long()[owner] + offset % bw
-    py = y0.reshape(-1).long()[owner] + offset // bw
-    centre = torch.stack([px, py], dim=-1).to(points.dtype) + 0.5
-    flat = lambda t: t.reshape(batch * num_faces, -1)[owner]  # noqa: E731
-    a0, a1, a2 = flat(p0), flat(p1), flat(p2)
-    signed_area = area.reshape(-1)[owner]
-    w0 = _edge(a1, a2, centre) / signed_area
-    w1 = _edge(a2, a0, centre) / signed_area
-    w2 = 1.0 - w0 - w1
-    inside = (w0 >= 0) & (w1 >= 0) & (w2 >= 0)
-    inverse_depth = (w0 / z0.reshape(-1)[owner] + w1 / z1.reshape(-1)[owner] + w2 / z2.reshape(-1)[owner])
-    inside &= inverse_depth > 0
+    dx, dy = offset % bw, offset // bw
+    inside, inverse_depth = candidate_test([plane.reshape(-1)[owner] for plane in planes],
+                                           dx.to(points.dtype), dy.to(points.dtype))
     cand_depth = 1.0 / inverse_depth[inside]
     frame = owner[inside] // num_faces
     face_index = owner[inside] % num_faces
-    pixel = (frame * height + py[inside]) * width + px[inside]
+    px = x0.reshape(-1).long()[owner][inside] + dx[inside]
+    py = y0.reshape(-1).long()[owner][inside] + dy[inside]
+    pixel = (frame * height + py) * width + px
     # sort key: depth bits (positive floats order like integers) then face index
     depth_bits = cand_depth.float().view(torch.int32).long()
     key = (depth_bits << _FACE_BITS) | face_index
