@@ -394,43 +394,48 @@ class _Scatter(torch.autograd.Function):
 
 def antialias(images, points, K, rast: Rasterization, topology: EdgeTopology):
     """antialias.antialias of each image (B, H, W, C_i) of a list: the crossings found once, the
-    same blend with a hand-written backward."""
+    same blend with a hand-written backward, written into the images themselves (render's
+    composite made them, and nothing else reads them)."""
     crossings = silhouette_crossings(points, K, rast, topology)
     if crossings is None:
         return images
     inside, outside, coverage = crossings
     spills_out = coverage > 0.5
     weight = (coverage - 0.5).abs().unsqueeze(1)
-    return [_Blend.apply(image.reshape(-1, image.shape[-1]), weight, inside, outside, spills_out).view_as(image)
-            for image in images]
+    return [_Blend.apply(image, weight, inside, outside, spills_out) for image in images]
 
 
 class _Blend(torch.autograd.Function):
     # forward, as antialias.antialias: where an edge spills out, the outside pixel gains
-    # w (in - out); otherwise the inside pixel gains w (out - in). Backward: the image's gradient
-    # passes through, plus +-w g at the two pixels of each crossing, in one scatter; autograd's
-    # record of the two gathers made a zero image for each.
+    # w (in - out); otherwise the inside pixel gains w (out - in); in place, the values read
+    # first. Backward: the image's gradient passes through, plus +-w g at the two pixels of each
+    # crossing, in one scatter; autograd's record of the two gathers made a zero image for each.
 
     @staticmethod
-    def forward(ctx, flat, weight, inside, outside, spills_out):
+    def forward(ctx, image, weight, inside, outside, spills_out):
+        flat = image.view(-1, image.shape[-1])
         target = torch.where(spills_out, outside, inside)
         source = torch.where(spills_out, inside, outside)
         delta = flat.index_select(0, source) - flat.index_select(0, target)
         ctx.save_for_backward(weight, source, target, delta)
-        return flat.index_add(0, target, weight * delta)
+        ctx.mark_dirty(image)
+        flat.index_add_(0, target, weight * delta)
+        return image
 
     @staticmethod
     def backward(ctx, grad):
         weight, source, target, delta = ctx.saved_tensors
-        grad_target = grad.index_select(0, target)
-        grad_flat = grad_weight = None
+        flat = grad.reshape(-1, grad.shape[-1])
+        grad_target = flat.index_select(0, target)
+        grad_image = grad_weight = None
         if ctx.needs_input_grad[0]:
-            # out[target] = flat[target] + w (flat[source] - flat[target])
+            # out[target] = image[target] + w (image[source] - image[target])
             spread = grad_target * weight
-            grad_flat = grad.clone().index_add_(0, torch.cat([source, target]), torch.cat([spread, -spread]))
+            grad_image = flat.clone().index_add_(0, torch.cat([source, target]), torch.cat([spread, -spread]))
+            grad_image = grad_image.view_as(grad)
         if ctx.needs_input_grad[1]:
             grad_weight = (grad_target * delta).sum(-1, keepdim=True)
-        return grad_flat, grad_weight, None, None, None
+        return grad_image, grad_weight, None, None, None
 
 
 def _cross(u, v):
