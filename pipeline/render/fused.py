@@ -97,7 +97,8 @@ def fragments(points, faces, K, rast: Rasterization):
 class _Barycentrics(torch.autograd.Function):
     """Perspective-correct barycentrics of pixel centres (N, 2) in triangles given by their
     corners (N, 3, 3): screen x, y and 1/z. The formulas of interpolate.fragments; the
-    backward is written out (edge functions are bilinear, the rest is a normalisation)."""
+    backward is written out: the screen weights w of a fixed point x = sum_j w_j p_j move with
+    a corner p_j as dw / dp_j = -w_j grad_x(w), and grad_x(w) is constant over the triangle."""
 
     @staticmethod
     def forward(ctx, corners, centre):
@@ -112,34 +113,24 @@ class _Barycentrics(torch.autograd.Function):
         weighted = screen * corners[..., 2]
         total = weighted[:, :1] + weighted[:, 1:2] + weighted[:, 2:3]
         bary = weighted / total
-        ctx.save_for_backward(corners, centre, screen, bary, total, area, degenerate)
+        ctx.save_for_backward(corners, screen, bary, total, area)
         return bary
 
     @staticmethod
     def backward(ctx, grad):
-        corners, centre, screen, bary, total, area, degenerate = ctx.saved_tensors
+        corners, screen, bary, total, area = ctx.saved_tensors
         grad_weighted = (grad - _dot(grad, bary)) / total                        # (N, 3)
         grad_inverse_z = grad_weighted * screen
         grad_screen = grad_weighted * corners[..., 2]
-        grad_w0 = grad_screen[:, 0] - grad_screen[:, 2]                           # w2 = 1 - w0 - w1
-        grad_w1 = grad_screen[:, 1] - grad_screen[:, 2]
-        a, b, c = corners[:, 0, :2], corners[:, 1, :2], corners[:, 2, :2]
-        grad_e0, grad_e1 = grad_w0 / area, grad_w1 / area                        # w_k = e_k / area
-        grad_area = -(grad_w0 * screen[:, 0] + grad_w1 * screen[:, 1]) / area
-        grad_area = torch.where(degenerate, torch.zeros_like(grad_area), grad_area)
-        # d cross(u, v) = (v.y, -v.x) . du + (-u.y, u.x) . dv
-        b_from_e0, c_from_e0 = _cross_grads(b - centre, c - centre, grad_e0)
-        c_from_e1, a_from_e1 = _cross_grads(c - centre, a - centre, grad_e1)
-        along_ab, along_ac = _cross_grads(b - a, c - a, grad_area)
-        grad_xy = torch.stack([a_from_e1 - along_ab - along_ac, b_from_e0 + along_ab,
-                               c_from_e0 + c_from_e1 + along_ac], dim=1)
+        grad_w0 = (grad_screen[:, 0] - grad_screen[:, 2]) / area                  # w2 = 1 - w0 - w1
+        grad_w1 = (grad_screen[:, 1] - grad_screen[:, 2]) / area
+        # G = sum_i dL/dw_i grad_x(w_i), where area grad_x(w0) = (b - c) turned a quarter, and
+        # area grad_x(w1) = (c - a) turned; then dL/dp_j = -w_j G
+        x, y = corners[:, :, 0], corners[:, :, 1]
+        along_x = grad_w0 * (y[:, 1] - y[:, 2]) + grad_w1 * (y[:, 2] - y[:, 0])
+        along_y = grad_w0 * (x[:, 2] - x[:, 1]) + grad_w1 * (x[:, 0] - x[:, 2])
+        grad_xy = torch.stack([screen * along_x.unsqueeze(1), screen * along_y.unsqueeze(1)], dim=-1).neg_()
         return torch.cat([grad_xy, grad_inverse_z.unsqueeze(-1)], dim=-1), None
-
-
-def _cross_grads(u, v, grad):
-    """Gradients of grad * cross(u, v) with respect to u and v, both (N, 2)."""
-    grad = grad.unsqueeze(-1)
-    return grad * torch.stack([v[:, 1], -v[:, 0]], dim=-1), grad * torch.stack([-u[:, 1], u[:, 0]], dim=-1)
 
 
 def interpolate(attributes, frags: Fragments, faces):
