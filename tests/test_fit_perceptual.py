@@ -81,3 +81,16 @@ def test_laplacian_pyramid_loss_is_the_l1_between_two_pyramids():
     grad_fused, = torch.autograd.grad(fused, rendered)
     grad_definition, = torch.autograd.grad(definition, rendered)
     assert torch.allclose(grad_fused, grad_definition, atol=1e-12)
+
+
+def test_pyramid_blur_is_the_binomial_blur_at_every_other_pixel():
+    """Against the separable binomial filter written out, on odd and even sizes: replicated
+    borders, the even pixels kept."""
+    generator = torch.Generator().manual_seed(1)
+    for height, width in [(9, 12), (16, 7)]:
+        x = torch.rand(2, 3, height, width, generator=generator, dtype=torch.float64)
+        taps = torch.tensor([1.0, 4.0, 6.0, 4.0, 1.0], dtype=torch.float64) / 16
+        padded = torch.nn.functional.pad(x, (2, 2, 2, 2), mode="replicate")
+        rows = sum(taps[k] * padded[..., k:k + height, :] for k in range(5))
+        blurred = sum(taps[k] * rows[..., :, k:k + width] for k in range(5))
+        assert torch.allclose(perceptual._blur_down(x), blurred[..., ::2, ::2], atol=1e-12)
