@@ -38,8 +38,8 @@ RECENT_STEPS = 15            # a stage's rate: the median of this many of its la
 OWN_RATE_AFTER = 4           # ...once it has taken this many
 SPEED_PRIOR_SECONDS = 20.0   # the machine's observed speed counts once this much has been timed...
 SPEED_MEMORY_SECONDS = 60.0  # ...and follows a change (another process starting) over about this long
-AFTER_STAGES_FACTOR = 5.5    # albedo solve + fill + outputs: this many appearance steps per batch of frames
-#                              (measured with the float32 MS-SSIM on the 150-frame clip: 4.5 on `fast`, 6 on `full`)
+AFTER_STAGES_FACTOR = 6.5    # albedo solve + fill + outputs: this many appearance steps per batch of frames
+#                              (measured on the 150-frame clip with the fused renderer: 5.7 on `fast`, 7.3 on `full`)
 # seconds per step at 256 px and batches of 6 (the alignment: per frame), measured on a 2-core CPU
 FALLBACK_COSTS = {"align": 0.03, "geometry": 0.5, "geometry+appearance": 1.1, "geometry+appearance shadows": 1.4,
                   "appearance": 0.8, "appearance shadows": 1.1}
