@@ -397,10 +397,11 @@ def antialias(images, points, K, rast: Rasterization, topology: EdgeTopology):
 
 
 class _Blend(torch.autograd.Function):
-    # forward, as antialias.antialias: where an edge spills out, the outside pixel gains
-    # w (in - out); otherwise the inside pixel gains w (out - in); in place, the values read
-    # first. Backward: the image's gradient passes through, plus +-w g at the two pixels of each
-    # crossing, in one scatter; autograd's record of the two gathers made a zero image for each.
+    """The antialias blend of antialias.antialias, in place: where an edge spills out, the
+    outside pixel gains w (in - out); otherwise the inside pixel gains w (out - in), all values
+    read first. Backward: the image's gradient passes through, plus +-w g at the two pixels of
+    each crossing, in one scatter (autograd's record of the two gathers made a zero image for
+    each)."""
 
     @staticmethod
     def forward(ctx, image, weight, inside, outside, spills_out):

@@ -4,8 +4,9 @@ Pure PyTorch, batched over frames, on any device. Every face enumerates the pixe
 its screen bounding box; an inside test with edge functions and a depth-keyed scatter-min
 keep the nearest face per pixel. The edge functions and the inverse depth are affine in the
 image, so each face's are evaluated once at the first pixel centre of its box and stepped from
-there by whole pixels (as hardware rasterisers do), a few operations per candidate pixel. Faces with a vertex at or behind the near plane are culled
-(never clipped), so geometry behind or crossing the camera never produces garbage.
+there by whole pixels (as hardware rasterisers do), a few operations per candidate pixel.
+Faces with a vertex at or behind the near plane are culled (never clipped), so geometry behind
+or crossing the camera never produces garbage.
 
 Pixel convention (OpenCV): pixel (i, j) has its centre at (i + 0.5, j + 0.5) in the image
 coordinates that K maps to, i.e. x to the right, y down.
