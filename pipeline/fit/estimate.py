@@ -39,7 +39,7 @@ OWN_RATE_AFTER = 4           # ...once it has taken this many
 SPEED_PRIOR_SECONDS = 20.0   # the machine's observed speed counts once this much has been timed...
 SPEED_MEMORY_SECONDS = 60.0  # ...and follows a change (another process starting) over about this long
 AFTER_STAGES_FACTOR = 6.5    # albedo solve + fill + outputs: this many appearance steps per batch of frames
-#                              (measured on the 150-frame clip with the fused renderer: 5.7 on `fast`, 7.3 on `full`)
+#                              (measured on the 150-frame clip with the fused renderer: 5.7 on `fast`, 7.3-8.5 on `full`)
 # seconds per step at 256 px and batches of 6 (the alignment: per frame), measured on a 2-core CPU
 FALLBACK_COSTS = {"align": 0.03, "geometry": 0.5, "geometry+appearance": 1.1, "geometry+appearance shadows": 1.4,
                   "appearance": 0.8, "appearance shadows": 1.1}
