@@ -52,18 +52,24 @@ def clip(tmp_path_factory):
     return folder
 
 
-def write_truth_avatar(folder, clip, normal_shift_m=0.0):
+def write_truth_avatar(folder, clip, normal_shift_m=0.0, scale=1.0):
     """An avatar folder holding the true identity itself (optionally displaced along its rest
-    normals by `normal_shift_m`) with the true albedo."""
+    normals by `normal_shift_m`, or scaled by `scale` about the wrist joint) with the true albedo."""
     truth = fidelity.true_hand(clip)
     rig = truth.data
     if normal_shift_m:
         import torch
         normals = vertex_normals(torch.as_tensor(rig.vertices)[None], torch.as_tensor(rig.faces.astype(np.int64)))[0]
         rig = dataclasses.replace(rig, vertices=rig.vertices + normal_shift_m * normals.numpy())
+    if scale != 1.0:
+        wrist = rig.joints[0]
+        rig = dataclasses.replace(rig, vertices=wrist + scale * (rig.vertices - wrist),
+                                  joints=wrist + scale * (rig.joints - wrist),
+                                  keypoints=wrist + scale * (rig.keypoints - wrist))
     info = seq.read_sequence_info(clip)
     poses = av.AvatarPoses(np.zeros((1, 3)), np.array([[0.0, 0.0, 0.5]]), np.zeros((1, 16, 3)), np.array([0]))
-    description = {"mode": rig.mode, "side": rig.side, "betas": [0.0] * 12,
+    betas = seq.read_ground_truth(clip / seq.GT_FILE).betas
+    description = {"mode": rig.mode, "side": rig.side, "betas": np.asarray(betas).tolist(),
                    "light": {"position": [0.1, -0.2, 0.0], "ambient": 0.6, "shadows": False},
                    "camera": {"K": np.asarray(info.K).tolist(), "width": info.width, "height": info.height}}
     albedo = seq.read_rgb(clip / seq.GT_ALBEDO_FILE)
@@ -87,6 +93,14 @@ def test_the_truth_scores_perfectly(clip, tmp_path):
                                     fidelity.HandModel(truth.data), fidelity.NAMED_POSES["fist"], 30.0, 10.0)
     assert fidelity.image_scores(*renders[0], *renders[1])["psnr"] == fidelity.PSNR_CAP
     assert len(poses["rows"]) == 7 * 2
+    assert poses["fitted_shape_alone"]["psnr_mean"] > 60 and poses["fitted_albedo_alone"]["psnr_mean"] > 60
+    assert geometry["apart_from_size"]["scale"] == pytest.approx(1.0, abs=1e-9)
+    assert geometry["apart_from_size"]["surface_mm_mean"] < 1e-6
+    # the personal offsets (0.2 mm per axis) are what the true template lacks; the avatar's
+    # template (its betas, the true ones, without its displacements) is that template
+    template = geometry["without_personal_detail"]
+    assert 0.05 < template["true_template"]["surface_mm_mean"] < 0.5
+    assert template["fitted_template"] == pytest.approx(template["true_template"], rel=1e-9)
     assert texture["mae"] < 2 / 255 and texture["sharpness_ratio"] == pytest.approx(1.0, abs=0.02)
     assert (folder / fidelity.FIDELITY_PICTURE).is_file()
     assert json.loads((folder / fidelity.FIDELITY_FILE).read_text())["geometry"] == geometry
@@ -98,6 +112,21 @@ def test_a_known_displacement_is_measured(clip, tmp_path):
     assert geometry["surface_mm_mean"] == pytest.approx(1.0, rel=0.03)
     assert geometry["surface_mm_fitted_to_true"] == pytest.approx(1.0, rel=0.03)
     assert geometry["roughness_deg"] < 1.0             # an offset surface is as smooth as the original
+
+
+def test_a_wrong_size_is_told_apart(clip, tmp_path):
+    """A hand 3% too big: a surface error of about 3% of its size, all of it the size (the
+    similarity finds the scale and leaves nothing); in new poses only the fitted shape loses,
+    the true shape with the fitted (true) albedo scores as the truth."""
+    folder = write_truth_avatar(tmp_path / "bigger", clip, scale=1.03)
+    result = fidelity.evaluate_fidelity(folder, clip, picture=False)
+    geometry, poses = result["geometry"], result["new_poses"]
+    assert geometry["surface_mm_mean"] > 0.5
+    assert geometry["apart_from_size"]["scale"] == pytest.approx(1 / 1.03, rel=1e-6)
+    assert geometry["apart_from_size"]["surface_mm_mean"] < 1e-6
+    assert poses["fitted_shape_alone"]["psnr_mean"] == pytest.approx(poses["psnr_mean"], abs=1.0)
+    assert poses["fitted_shape_alone"]["iou_mean"] < 0.98
+    assert poses["fitted_albedo_alone"]["psnr_mean"] > 60 and poses["fitted_albedo_alone"]["iou_mean"] == 1.0
 
 
 def test_only_a_synth_clip_has_a_cycles_truth(clip):

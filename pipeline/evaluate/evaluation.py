@@ -92,6 +92,17 @@ def summary_lines(result):
                      f"{geometry['roughness_deg'] or float('nan'):.1f} deg; new poses PSNR {poses['psnr_mean']:.1f} dB "
                      f"(overlap {poses['psnr_overlap_mean']:.1f}), SSIM {poses['ssim_mean']:.3f}, IoU "
                      f"{poses['iou_mean']:.3f}; albedo sharpness {texture['sharpness_ratio']:.2f}")
+        size = geometry.get("apart_from_size")
+        if size and "fitted_shape_alone" in poses:
+            shape, albedo = poses["fitted_shape_alone"], poses["fitted_albedo_alone"]
+            template = geometry["without_personal_detail"]
+            fitted_template = template.get("fitted_template", {}).get("surface_mm_mean", float("nan"))
+            lines.append(f"what limits it: apart from its size (scale {size['scale']:.3f}) the surface is "
+                         f"{size['surface_mm_mean']:.2f} mm off (the true template without its personal offsets: "
+                         f"{template['true_template']['surface_mm_mean']:.2f} mm, the avatar's without its "
+                         f"displacements: {fitted_template:.2f} mm); in new poses the fitted shape with the true albedo "
+                         f"scores PSNR {shape['psnr_mean']:.1f} dB (IoU {shape['iou_mean']:.3f}), the true shape "
+                         f"with the fitted albedo {albedo['psnr_mean']:.1f} dB")
         cycles = result["fidelity"].get("cycles")
         if cycles and "unavailable" in cycles:
             lines.append(f"against Cycles: {cycles['unavailable']}")

@@ -7,7 +7,12 @@ albedo (gt.npz: shape and personal offsets; gt_albedo.png).
                 frame, over the hand (forearm and wrist cap left out): mean and 95th-percentile
                 surface distance (mm, both ways), the angle between their normals at the
                 closest points (degrees), and roughness: the mean absolute difference of the
-                dihedral angles of corresponding edges (degrees; facets and lumps raise it)
+                dihedral angles of corresponding edges (degrees; facets and lumps raise it);
+                and the surface distance once the fitted hand is scaled, turned and moved onto
+                the truth, with that scale (`apart_from_size`: what the hand's size, which a
+                monocular clip barely decides, leaves of the error); and, as references, the
+                surface figures of the true template without the personal offsets and of the
+                avatar's template without its displacements (`without_personal_detail`)
     new poses   (a) both rendered by our renderer in poses the clip does not contain (fist,
                 spread, thumbs-up, pinch and three random poses inside the joint limits) from
                 two views (palm and back), under one light: PSNR and SSIM inside the union of
@@ -16,6 +21,9 @@ albedo (gt.npz: shape and personal offsets; gt_albedo.png).
                 multiplied by the per-channel scale that fits the truth best in the visible UV
                 area (albedo and light intensity trade off; evaluate/albedo.py), so the figures
                 judge shape, pose response and texture, not exposure; the raw PSNR is kept too.
+                What limits them: the same figures for the fitted shape with the true albedo
+                (`fitted_shape_alone`) and for the true shape with the fitted albedo
+                (`fitted_albedo_alone`).
                 (b), with `cycles`: the avatar as fitted, under its fitted light, against the
                 true hand rendered by Cycles under the clip's own light (cycles_truth.py): what
                 a user sees; the true hand by our renderer against the same renders is the floor
@@ -67,6 +75,7 @@ class TrueHand:
 
     data: fmt.HandModelData          # subdivided; vertices = the true rest surface; betas baked in
     albedo: torch.Tensor             # (3, T, T) gt_albedo in [0, 1]
+    template: fmt.HandModelData      # the same without the personal offsets: the shaped template
 
 
 def true_hand(sequence) -> TrueHand:
@@ -77,8 +86,10 @@ def true_hand(sequence) -> TrueHand:
     gt = seq.read_ground_truth(sequence / info.ground_truth)
     if gt.personal_offsets is None:
         raise EvaluationError(f"{sequence / info.ground_truth} has no personal offsets (an older synth clip)")
-    return TrueHand(identity_on_model(load_model_data(gt.mode, gt.side), gt.betas, gt.personal_offsets),
-                    _albedo_tensor(seq.read_rgb(sequence / info.albedo)))
+    base = load_model_data(gt.mode, gt.side)
+    return TrueHand(identity_on_model(base, gt.betas, gt.personal_offsets),
+                    _albedo_tensor(seq.read_rgb(sequence / info.albedo)),
+                    identity_on_model(base, gt.betas, np.zeros_like(gt.personal_offsets)))
 
 
 def identity_on_model(base, betas, offsets):
@@ -117,6 +128,44 @@ def geometry_errors(fitted: fmt.HandModelData, truth: fmt.HandModelData):
     if fitted.faces.shape == truth.faces.shape and np.array_equal(fitted.faces, truth.faces):
         result["roughness_deg"] = float(np.abs(_dihedral(fitted.vertices, f_faces) - _dihedral(truth.vertices, f_faces))
                                         .mean())
+        result["apart_from_size"] = _error_apart_from_size(fitted, truth, f_points, t_faces, t_points, f_faces)
+    return result
+
+
+def _error_apart_from_size(fitted, truth, f_points, t_faces, t_points, f_faces):
+    """The surface distance left once the fitted hand is scaled, turned and moved onto the truth
+    (the similarity that fits corresponding hand vertices best), and that scale. A monocular
+    clip decides a hand's size only through perspective and the shape prior (a hand twice as
+    big twice as far looks the same): this part of the error is what the size leaves."""
+    f_vertices, t_vertices = (torch.as_tensor(np.asarray(v, dtype=np.float64)) for v in (fitted.vertices, truth.vertices))
+    hand = torch.as_tensor(f_points)
+    aligned_hand = metrics.procrustes_align(f_vertices[hand], t_vertices[hand])
+    centred = f_vertices[hand] - f_vertices[hand].mean(0)
+    scale = float((aligned_hand - aligned_hand.mean(0)).norm() / centred.norm())
+    moved = f_vertices.clone()
+    moved[hand] = aligned_hand
+    moved = moved.numpy()
+    to_truth = closest_points(moved[f_points], truth.vertices, t_faces)[0]
+    to_fitted = closest_points(truth.vertices[t_points], moved, f_faces)[0]
+    distances = np.concatenate([to_truth, to_fitted]) * 1000
+    return {"scale": scale, "surface_mm_mean": float(distances.mean()),
+            "surface_mm_p95": float(np.percentile(distances, 95))}
+
+
+def personal_detail(description, truth: TrueHand):
+    """How much of the error is the personal shape, which lies mostly below a working pixel: the
+    surface figures of the true shaped template without the personal offsets (what a fit that
+    found the true size and proportions but no personal detail scores), and of the fitted
+    template (the avatar's shape parameters without its displacements: what its displacements
+    are measured against)."""
+    def summary(data):
+        errors = geometry_errors(data, truth.data)
+        return {key: errors[key] for key in ("surface_mm_mean", "surface_mm_p95", "normal_deg_mean")}
+    result = {"true_template": summary(truth.template)}
+    if description.get("betas") is not None:
+        base = load_model_data(truth.data.mode, truth.data.side)
+        result["fitted_template"] = summary(identity_on_model(base, description["betas"],
+                                                              np.zeros_like(base.vertices)))
     return result
 
 
@@ -273,21 +322,30 @@ def evaluate_fidelity(avatar_folder, sequence, picture=True, cycles=False):
     scaled = Appearance((appearance.albedo * scale).clamp(0, 1), appearance.normal_map)
     truth_model = HandModel(truth.data)
     truth_appearance = Appearance(truth.albedo)
-    poses, renders, rows = novel_poses(truth.data.side), {}, []
+    # what limits the new-pose figures: the fitted shape with the true albedo, the true shape
+    # with the fitted albedo
+    shape_alone = Appearance(truth.albedo, appearance.normal_map)
+    albedo_alone = Appearance(scaled.albedo)
+    poses, renders, rows, parts = novel_poses(truth.data.side), {}, [], {"fitted_shape": [], "fitted_albedo": []}
     for name, pose in poses.items():
         for view, (azimuth, elevation) in VIEWS.items():
-            (a_rgb, a_alpha), (raw_rgb, _), (t_rgb, t_alpha) = render_posed(
-                [(avatar_model, scaled), (avatar_model, appearance), (truth_model, truth_appearance)], truth_model,
-                pose, azimuth, elevation)
+            (a_rgb, a_alpha), (raw_rgb, _), (s_rgb, s_alpha), (c_rgb, c_alpha), (t_rgb, t_alpha) = render_posed(
+                [(avatar_model, scaled), (avatar_model, appearance), (avatar_model, shape_alone),
+                 (truth_model, albedo_alone), (truth_model, truth_appearance)], truth_model, pose, azimuth, elevation)
             scores = image_scores(a_rgb, a_alpha, t_rgb, t_alpha)
             scores["psnr_raw"] = image_scores(raw_rgb, a_alpha, t_rgb, t_alpha)["psnr"]
             rows.append({"pose": name, "view": view, **scores})
+            parts["fitted_shape"].append(image_scores(s_rgb, s_alpha, t_rgb, t_alpha))
+            parts["fitted_albedo"].append(image_scores(c_rgb, c_alpha, t_rgb, t_alpha))
             renders[name, view] = (a_rgb[0].numpy(), t_rgb[0].numpy())
+    keys = ("psnr", "ssim", "iou", "psnr_overlap")
     result = {
-        "geometry": geometry_errors(files.rig, truth.data),
-        "new_poses": {"rows": rows, **{f"{key}_mean": float(np.mean([r[key] for r in rows]))
-                                       for key in ("psnr", "ssim", "iou", "psnr_overlap", "psnr_raw")},
-                      "poses": list(poses), "views": VIEWS, "albedo_scale": texture["scale"]},
+        "geometry": {**geometry_errors(files.rig, truth.data),
+                     "without_personal_detail": personal_detail(files.description, truth)},
+        "new_poses": {"rows": rows, **{f"{key}_mean": float(np.mean([r[key] for r in rows])) for key in keys + ("psnr_raw",)},
+                      "poses": list(poses), "views": VIEWS, "albedo_scale": texture["scale"],
+                      **{f"{part}_alone": {f"{key}_mean": float(np.mean([r[key] for r in part_rows])) for key in keys}
+                         for part, part_rows in parts.items()}},
         "texture": texture,
     }
     if cycles:
