@@ -36,13 +36,17 @@ def gradient_energy(texture, where):
 @pytest.fixture(scope="module")
 def problem(tmp_path_factory):
     """A problem whose frames are the avatar's own renders (its pose and light, the sharp albedo)."""
+    return problem_rendered_with(tmp_path_factory, sharp_albedo())
+
+
+def problem_rendered_with(tmp_path_factory, albedo):
     folder = tmp_path_factory.mktemp("albedo_solve") / "clip"
     write_clip(folder, OPEN, frames=FRAMES, size=SIZE, turn_degrees=25)
     initialise_sequence(folder, "gt-noise", noise_degrees=0.0, noise_translation_m=0.0, log=lambda *a: None)
     problem = build_problem(folder, settings_for("fast", FRAMES, resolution=SIZE, texture_size=TEXTURE),
                             np.arange(FRAMES), "cpu")
     avatar = problem.avatar
-    truth = torch.as_tensor(sharp_albedo(), dtype=avatar.albedo.dtype)
+    truth = torch.as_tensor(albedo, dtype=avatar.albedo.dtype)
     with torch.no_grad():
         vertices, _ = avatar.posed(torch.arange(FRAMES))
         images = render(vertices, avatar.mesh, problem.clip.K, SIZE, SIZE, outputs=("rgb", "alpha"),
@@ -62,6 +66,23 @@ def test_solved_albedo_is_the_albedo_the_frames_were_rendered_with(problem):
     error = np.abs(albedo - truth).mean(0)[read].mean()
     assert error < 0.1 * np.abs(start - truth).mean(0)[read].mean() and error < 0.02
     assert gradient_energy(albedo, read) > 0.8 * gradient_energy(truth, read)   # the rings stay sharp
+
+
+def test_detail_finer_than_a_texel_is_solved_on_a_finer_texture(tmp_path_factory):
+    """Frames rendered with a texture twice as fine as the avatar's: its detail cannot be
+    explained texel by texel, and the reweighting reads it as the frames' disagreement. Solved
+    on a texture twice as fine (supersample=2) and averaged back, the albedo is nearer the fine
+    texture's own area average than the solve at the avatar's size."""
+    fine = sharp_albedo(2 * TEXTURE)
+    problem, _ = problem_rendered_with(tmp_path_factory, fine)
+    averaged = fine.reshape(3, TEXTURE, 2, TEXTURE, 2).mean((2, 4))
+    errors = {}
+    for supersample in (1, 2):
+        albedo, read = solved_albedo(problem, shadows=False, supersample=supersample)
+        assert albedo.shape == (3, TEXTURE, TEXTURE) and read.shape == (TEXTURE, TEXTURE)
+        read = read.numpy() & (problem.uv_mask.numpy() > 0)
+        errors[supersample] = np.abs(albedo.numpy() - averaged).mean(0)[read].mean()
+    assert errors[2] < 0.8 * errors[1]
 
 
 def test_the_solve_divides_the_exposure_gains_out(problem):

@@ -62,7 +62,7 @@ class _Observations:
 
 
 @torch.no_grad()
-def solved_albedo(problem, shadows, batch_size=4):
+def solved_albedo(problem, shadows, batch_size=4, supersample=1):
     """((3, T, T) albedo in [0, 1] that explains the problem's frames best with its avatar's
     current geometry, light and exposure gains, (T, T) bool: texels the frames decide).
 
@@ -75,8 +75,23 @@ def solved_albedo(problem, shadows, batch_size=4):
     well decided (WELL_SEEN); and the albedo is solved again. Texels whose frames
     disagree (what the renderer does not model: a shadow edge in the wrong place, a highlight)
     or that few pixels show lean on the current albedo; clean, well-seen texels follow the
-    frames."""
+    frames.
+
+    `supersample` > 1 solves a texture that many times finer (the current albedo enlarged as its
+    prior) and returns its area average at the avatar's size: detail finer than a texel then
+    explains the pixels instead of reading as their disagreement."""
     current = problem.avatar.albedo.detach().clamp(0, 1)
+    if supersample > 1:
+        finer = torch.nn.functional.interpolate(current[None], scale_factor=supersample, mode="bilinear",
+                                                align_corners=False)[0]
+        albedo, solved = _solved(problem, shadows, batch_size, finer)
+        albedo = torch.nn.functional.avg_pool2d(albedo[None], supersample)[0]
+        solved = torch.nn.functional.max_pool2d(solved[None, None].float(), supersample)[0, 0] > 0
+        return albedo, solved
+    return _solved(problem, shadows, batch_size, current)
+
+
+def _solved(problem, shadows, batch_size, current):
     size = current.shape[-1]
     seen = _observations(problem, shadows, batch_size, size)
     if not len(seen.colour):                       # no frame shows a usable pixel of the hand
