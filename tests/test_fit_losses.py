@@ -134,3 +134,56 @@ def test_temporal_terms_vanish_on_steady_motion_and_count_time_gaps():
     jolted[1, 1] += 0.01
     expected = np.mean([(-2 / 1) ** 2, (1 / 1.5) ** 2, 0.0])
     assert losses.temporal_global_loss(rotations, jolted, times).item() == pytest.approx(expected, rel=1e-4)
+
+
+def test_coarse_displacements_are_carried_to_every_subdivided_point():
+    """displacement_grid "coarse": one displacement per unsubdivided vertex; each subdivided
+    point moves along its rest normal by the mean of its parents', so a constant field is the
+    fine grid's constant field and a midpoint takes the mean of its edge's ends."""
+    from pipeline.fit.problem import build_avatar
+    from pipeline.formats.initial_estimate import InitialEstimate
+
+    frames = 2
+    initial = InitialEstimate(source="test", mode="hand", side="right", betas=np.zeros(12),
+                              pose=np.zeros((frames, 16, 3)), global_orient=np.zeros((frames, 3)),
+                              transl=np.tile([0.0, 0.0, 0.5], (frames, 1)), keypoints3d=np.zeros((frames, 21, 3)),
+                              residual_px=np.zeros(frames), detected=np.ones(frames, dtype=bool))
+    coarse = build_avatar(initial, np.arange(frames), 16, "cpu", "coarse")
+    fine = build_avatar(initial, np.arange(frames), 16, "cpu")
+    assert coarse.displacement.shape[0] == coarse.coarse_model.data.num_vertices
+    assert fine.displacement.shape[0] == fine.model.data.num_vertices
+    with torch.no_grad():
+        coarse.displacement.fill_(0.001)
+        fine.displacement.fill_(0.001)
+    torch.testing.assert_close(coarse.displaced_rest(), fine.displaced_rest())
+    with torch.no_grad():
+        coarse.displacement.copy_(torch.rand(coarse.displacement.shape[0], generator=torch.Generator().manual_seed(0)))
+    parents = coarse.displacement_parents
+    field = coarse.displacement_field()
+    torch.testing.assert_close(field, 0.5 * (coarse.displacement[parents[:, 0]] + coarse.displacement[parents[:, 1]]))
+    field.sum().backward()   # the parameters get gradients through the grid
+    assert coarse.displacement.grad.abs().sum() > 0
+
+
+def test_the_silhouette_target_is_the_masks_sub_pixel_coverage(tmp_path):
+    """A clip fitted below its own size: each working pixel's coverage is the share of its
+    source pixels the mask covers (here exactly 2 x 2 each), the binary mask rounds it; at the
+    source's own size the two are one."""
+    from pipeline.evaluate.exact_clips import write_clip
+    from pipeline.fit.clip_data import load_clip
+    from pipeline.formats import sequence_folder as seq
+    from synth.motions import RELAXED
+
+    folder = tmp_path / "clip"
+    write_clip(folder, RELAXED, frames=2, size=96)
+    info = seq.read_sequence_info(folder)
+    source = np.stack([seq.read_mask(seq.mask_path(folder, info, i)) for i in range(2)]).astype(np.float64)
+    half = load_clip(folder, 48)
+    expected = source.reshape(2, 48, 2, 48, 2).mean((2, 4))
+    np.testing.assert_allclose(half.coverage[..., 0].numpy(), expected, atol=1e-6)
+    assert ((expected > 0) & (expected < 1)).any()                      # edges fall inside pixels
+    torch.testing.assert_close(half.masks, (half.coverage >= 0.5).to(half.masks.dtype))
+    batch = torch.tensor([1])
+    torch.testing.assert_close(half.silhouette_target(batch), half.coverage[batch])
+    whole = load_clip(folder, 96)
+    assert whole.coverage is None and torch.equal(whole.silhouette_target(batch), whole.masks[batch])

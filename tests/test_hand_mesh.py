@@ -5,7 +5,7 @@ import torch
 
 from pipeline.formats import hand_model_file as fmt
 from pipeline.handmodel import measurements, mesh_checks
-from pipeline.handmodel.subdivision import subdivide_model_data
+from pipeline.handmodel.subdivision import midpoint_parents, subdivide_model_data
 
 
 def test_closed_oriented_manifold_without_self_intersections(model_data, mode):
@@ -105,3 +105,15 @@ def test_shape_names_are_documented(model_data):
     assert len(set(data.shape_names)) == data.num_betas
     assert data.shape_names[0] == "scale"
     assert fmt.PART_NAMES[data.vertex_parts.max()] in fmt.PART_NAMES
+
+
+def test_midpoint_parents_carry_values_as_the_subdivision_does(model_data, mode):
+    """Every subdivided point is the mean of its two parents (a kept vertex: itself twice), for
+    positions as for any value carried over (the coarse displacement grid)."""
+    data = model_data[mode]
+    finer = subdivide_model_data(data)
+    parents = midpoint_parents(data)
+    assert parents.shape == (finer.num_vertices, 2)
+    np.testing.assert_array_equal(0.5 * (data.vertices[parents[:, 0]] + data.vertices[parents[:, 1]]), finer.vertices)
+    kept = parents[:, 0] == parents[:, 1]
+    assert kept.sum() == data.num_vertices and set(parents[kept, 0]) == set(range(data.num_vertices))

@@ -28,7 +28,8 @@ def fitted_avatar(fit_folder, sequence, device=None):
     """(the fit's Avatar over its frames, every parameter as in checkpoint.pt; the report)."""
     device = default_device(device)
     saved, report = load_finished_fit(fit_folder, device)
-    avatar = build_avatar(read_initial_estimate(sequence), report["frames"], saved.avatar["albedo"].shape[-1], device)
+    avatar = build_avatar(read_initial_estimate(sequence), report["frames"], saved.avatar["albedo"].shape[-1], device,
+                          saved.settings.displacement_grid)
     avatar.load_state_dict(saved.avatar)
     return avatar, report
 

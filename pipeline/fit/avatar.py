@@ -34,11 +34,16 @@ APPEARANCE = TEXTURES + LIGHT
 class Avatar(torch.nn.Module):
     """Parameters of one fit. `model` is the subdivided HandModel of the clip's mode and side."""
 
-    def __init__(self, model: HandModel, initial, frames, texture_size=512, light_position=None, coarse_model=None):
+    def __init__(self, model: HandModel, initial, frames, texture_size=512, light_position=None, coarse_model=None,
+                 displacement_parents=None):
         super().__init__()
         self.model = model
         self.coarse_model = coarse_model   # the unsubdivided model, for the alignment stage
         dtype, device = model.v_template.dtype, model.v_template.device
+        # displacements on the unsubdivided mesh, carried to the subdivided one as the mean of each
+        # point's two parents (subdivision.midpoint_parents), or None: one per subdivided point
+        self.register_buffer("displacement_parents", None if displacement_parents is None else
+                             torch.as_tensor(displacement_parents, device=device), persistent=False)
 
         def parameter(array):
             return torch.nn.Parameter(torch.as_tensor(np.array(array), dtype=dtype, device=device))
@@ -48,7 +53,8 @@ class Avatar(torch.nn.Module):
         self.transl = parameter(initial.transl[frames])
         self.pose = parameter(initial.pose[frames])
         self.betas = parameter(initial.betas)
-        self.displacement = parameter(np.zeros(model.data.num_vertices))
+        count = model.data.num_vertices if displacement_parents is None else int(np.max(displacement_parents)) + 1
+        self.displacement = parameter(np.zeros(count))
         self.albedo = parameter(np.broadcast_to(np.array(SKIN_RGB)[:, None, None], (3, texture_size, texture_size)))
         flat = np.zeros((3, texture_size, texture_size))
         flat[2] = 1.0
@@ -93,11 +99,18 @@ class Avatar(torch.nn.Module):
                          rest_vertices=self.displaced_rest())
         return out.vertices, out.keypoints
 
+    def displacement_field(self):
+        """(V,) the displacement of every subdivided point along its rest normal (metres)."""
+        if self.displacement_parents is None:
+            return self.displacement
+        parents = self.displacement_parents
+        return 0.5 * (self.displacement.index_select(0, parents[:, 0]) + self.displacement.index_select(0, parents[:, 1]))
+
     def displaced_rest(self):
         """(V, 3) the personal rest surface: the shaped template displaced along its normals."""
         vertices, _, _ = self.model.shaped(self.betas)
         normals = vertex_normals(vertices[None], self.mesh.faces)[0]
-        return vertices + self.displacement[:, None] * normals
+        return vertices + self.displacement_field()[:, None] * normals
 
     def posed_coarse(self, batch):
         """(vertices, keypoints) of the unsubdivided model without displacements: the alignment's

@@ -31,16 +31,18 @@ def batch_energy(problem: FitProblem, stage: Stage, batch, shadows, generator):
 
     if stage.geometry:
         weight = None if problem.silhouette_weight is None else problem.silhouette_weight[batch]
-        add("silhouette", lambda: losses.silhouette_loss(images["alpha"], masks, weight))
+        target = clip.silhouette_target(batch) if problem.settings.silhouette_coverage else masks
+        add("silhouette", lambda: losses.silhouette_loss(images["alpha"], target, weight))
         add("keypoint_anchor", lambda: losses.keypoint_anchor_loss(keypoints[:, :21], problem.anchor_keypoints[batch]))
         # over every frame (no rendering involved): the batch's frames feel their neighbours
         add("temporal_pose", lambda: losses.temporal_pose_loss(avatar.pose * avatar.pose_mask, avatar.frame_numbers))
         add("temporal_global", lambda: losses.temporal_global_loss(axis_angle_to_matrix(avatar.global_orient),
                                                                    avatar.transl, avatar.frame_numbers))
     if stage.geometry and not stage.coarse:
-        add("displacement", lambda: losses.displacement_loss(avatar.displacement))
+        field = avatar.displacement_field()
+        add("displacement", lambda: losses.displacement_loss(field))
         add("laplacian", lambda: losses.laplacian_loss(vertices, problem.edges))
-        add("displacement_smoothness", lambda: losses.displacement_smoothness_loss(avatar.displacement, problem.edges))
+        add("displacement_smoothness", lambda: losses.displacement_smoothness_loss(field, problem.edges))
         add("normal_consistency", lambda: losses.normal_consistency_loss(vertices, avatar.mesh.faces,
                                                                          problem.face_pairs))
         add("edge_length", lambda: losses.edge_length_loss(vertices, problem.reference_vertices[batch], problem.edges))

@@ -18,6 +18,7 @@ from ..formats.hand_model_file import ELBOW_KEYPOINT_NAME
 from ..formats.initial_estimate import InitialEstimate, read_initial_estimate
 from ..formats.sequence_folder import validate_sequence_folder
 from ..handmodel.lbs import HandModel
+from ..handmodel.subdivision import midpoint_parents
 from ..handmodel.uv_atlas import uv_mask as atlas_mask
 from ..render.rasterize import project
 from .avatar import Avatar
@@ -105,7 +106,7 @@ def build_problem(sequence, settings: FitSettings, frames, device=None, shared=N
         settings = dataclasses.replace(settings, texture_size=int(shared["albedo"].shape[-1]))
     clip = load_clip(sequence, settings.resolution, frames, device=device)
     settings, exposure_note = _decide_exposure(settings, clip)
-    avatar = build_avatar(initial, clip.frames, settings.texture_size, device)
+    avatar = build_avatar(initial, clip.frames, settings.texture_size, device, settings.displacement_grid)
     exposure_measured = None
     if settings.exposure == "on":
         exposure_measured = measured_exposure(clip)
@@ -178,13 +179,16 @@ def _silhouette_weight(clip, avatar, keypoints):
     return (kept if weight is None else weight * kept), int(cuts.any((1, 2)).sum())
 
 
-def build_avatar(initial: InitialEstimate, frames, texture_size, device=None) -> Avatar:
+def build_avatar(initial: InitialEstimate, frames, texture_size, device=None, displacement_grid="fine") -> Avatar:
     """A new Avatar over `frames` of the initial estimate, on the subdivided model of its mode
-    and side (and the unsubdivided one for the alignment)."""
+    and side (and the unsubdivided one for the alignment); its displacements on the subdivided
+    mesh ("fine") or on the unsubdivided one ("coarse", FitSettings.displacement_grid)."""
     device = default_device(device)
     model = HandModel.load(initial.mode, initial.side, subdivided=True, device=device)
     coarse_model = HandModel.load(initial.mode, initial.side, subdivided=False, device=device)
-    return Avatar(model, initial, np.asarray(frames), texture_size, coarse_model=coarse_model)
+    parents = midpoint_parents(coarse_model.data) if displacement_grid == "coarse" else None
+    return Avatar(model, initial, np.asarray(frames), texture_size, coarse_model=coarse_model,
+                  displacement_parents=parents)
 
 
 def _take_shared(avatar, shared):

@@ -38,17 +38,32 @@ def subdivide_faces(faces, num_points, shared_count=0):
     return new_faces.astype(np.int32), edges
 
 
-def subdivide_model_data(data):
-    """A new HandModelData with every face split in four."""
-    shared = data.shared_vertex_count
-    faces, edges = subdivide_faces(data.faces, data.num_vertices, shared)
-    faces_uv, uv_edges = subdivide_faces(data.faces_uv, len(data.uvs))
-
-    count = data.num_vertices
+def _subdivision_order(data):
+    """(the new faces (4F, 3), the edges split (E, 2), and the order of the new points: the
+    shared vertices, their edge midpoints, the other vertices, the other midpoints)."""
+    shared, count = data.shared_vertex_count, data.num_vertices
+    faces, edges = subdivide_faces(data.faces, count, shared)
     shared_edges = int((edges < shared).all(axis=1).sum())
-    # order: shared vertices, their edge midpoints, the other vertices, the other midpoints
     order = np.concatenate([np.arange(shared), count + np.arange(shared_edges),
                             np.arange(shared, count), count + np.arange(shared_edges, len(edges))])
+    return faces, edges, order
+
+
+def midpoint_parents(data):
+    """(V', 2) for every point of subdivide_model_data(data), the two points of `data` it is the
+    mean of (a vertex kept: itself twice). A value per point of `data` carries over to the
+    subdivided mesh as the mean of its two parents' values."""
+    _, edges, order = _subdivision_order(data)
+    kept = np.repeat(np.arange(data.num_vertices)[:, None], 2, axis=1)
+    return np.concatenate([kept, edges])[order]
+
+
+def subdivide_model_data(data):
+    """A new HandModelData with every face split in four."""
+    faces, edges, order = _subdivision_order(data)
+    faces_uv, uv_edges = subdivide_faces(data.faces_uv, len(data.uvs))
+    shared = data.shared_vertex_count
+    shared_edges = int((edges < shared).all(axis=1).sum())
     position = np.empty_like(order)
     position[order] = np.arange(len(order))
 
