@@ -164,26 +164,3 @@ def test_coarse_displacements_are_carried_to_every_subdivided_point():
     field.sum().backward()   # the parameters get gradients through the grid
     assert coarse.displacement.grad.abs().sum() > 0
 
-
-def test_the_silhouette_target_is_the_masks_sub_pixel_coverage(tmp_path):
-    """A clip fitted below its own size: each working pixel's coverage is the share of its
-    source pixels the mask covers (here exactly 2 x 2 each), the binary mask rounds it; at the
-    source's own size the two are one."""
-    from pipeline.evaluate.exact_clips import write_clip
-    from pipeline.fit.clip_data import load_clip
-    from pipeline.formats import sequence_folder as seq
-    from synth.motions import RELAXED
-
-    folder = tmp_path / "clip"
-    write_clip(folder, RELAXED, frames=2, size=96)
-    info = seq.read_sequence_info(folder)
-    source = np.stack([seq.read_mask(seq.mask_path(folder, info, i)) for i in range(2)]).astype(np.float64)
-    half = load_clip(folder, 48)
-    expected = source.reshape(2, 48, 2, 48, 2).mean((2, 4))
-    np.testing.assert_allclose(half.coverage[..., 0].numpy(), expected, atol=1e-6)
-    assert ((expected > 0) & (expected < 1)).any()                      # edges fall inside pixels
-    torch.testing.assert_close(half.masks, (half.coverage >= 0.5).to(half.masks.dtype))
-    batch = torch.tensor([1])
-    torch.testing.assert_close(half.silhouette_target(batch), half.coverage[batch])
-    whole = load_clip(folder, 96)
-    assert whole.coverage is None and torch.equal(whole.silhouette_target(batch), whole.masks[batch])

@@ -24,14 +24,6 @@ class ClipData:
     info: seq.SequenceInfo
     frames: np.ndarray        # (F,) indices into the sequence
     valid: torch.Tensor | None = None   # (H, W, 1) pixels the camera recorded (None: all)
-    # (F, H, W, 1) in [0, 1]: the share of each working pixel the source's mask covers (the mask
-    # shrunk by area, before `masks` rounds it), where the edge lies within a pixel; None: masks
-    coverage: torch.Tensor | None = None
-
-    def silhouette_target(self, batch):
-        """(B, H, W, 1) what the rendered alpha of frames `batch` is compared with: the coverage
-        of the working pixels, sub-pixel where the source is finer than the working size."""
-        return (self.masks if self.coverage is None else self.coverage)[batch]
 
     @property
     def height(self):
@@ -67,7 +59,7 @@ def load_clip(folder, resolution=None, frames=None, device=None, dtype=torch.flo
     frames = np.arange(info.frame_count) if frames is None else np.asarray(frames)
     scale = 1.0 if resolution is None else min(1.0, resolution / max(info.width, info.height))
     size = (int(round(info.width * scale)), int(round(info.height * scale)))
-    images, masks, coverage = [], [], []
+    images, masks = [], []
     for index in frames:
         rgb = seq.read_rgb(seq.frame_path(folder, info, int(index)))
         hand = seq.read_mask(seq.mask_path(folder, info, int(index)))
@@ -78,7 +70,6 @@ def load_clip(folder, resolution=None, frames=None, device=None, dtype=torch.flo
             mask = cv2.resize(mask, size, interpolation=cv2.INTER_AREA)
         images.append(rgb.astype(np.float32) / 255)
         masks.append((mask >= 0.5).astype(np.float32))
-        coverage.append(mask)
     K = np.asarray(info.K, dtype=np.float64).copy()
     K[:2] *= np.array([[size[0] / info.width], [size[1] / info.height]])
     valid = None
@@ -87,8 +78,7 @@ def load_clip(folder, resolution=None, frames=None, device=None, dtype=torch.flo
         valid = torch.as_tensor((recorded > 0.999)[..., None], dtype=dtype, device=device)
     return ClipData(torch.as_tensor(np.stack(images), dtype=dtype, device=device),
                     torch.as_tensor(np.stack(masks)[..., None], dtype=dtype, device=device),
-                    torch.as_tensor(K, dtype=dtype, device=device), info, frames, valid,
-                    None if scale == 1.0 else torch.as_tensor(np.stack(coverage)[..., None], dtype=dtype, device=device))
+                    torch.as_tensor(K, dtype=dtype, device=device), info, frames, valid)
 
 
 def background_colour(images, masks, valid=None, margin=8):

@@ -31,8 +31,7 @@ def batch_energy(problem: FitProblem, stage: Stage, batch, shadows, generator):
 
     if stage.geometry:
         weight = None if problem.silhouette_weight is None else problem.silhouette_weight[batch]
-        target = clip.silhouette_target(batch) if problem.settings.silhouette_coverage else masks
-        add("silhouette", lambda: losses.silhouette_loss(images["alpha"], target, weight))
+        add("silhouette", lambda: losses.silhouette_loss(images["alpha"], masks, weight))
         add("keypoint_anchor", lambda: losses.keypoint_anchor_loss(keypoints[:, :21], problem.anchor_keypoints[batch]))
         # over every frame (no rendering involved): the batch's frames feel their neighbours
         add("temporal_pose", lambda: losses.temporal_pose_loss(avatar.pose * avatar.pose_mask, avatar.frame_numbers))

@@ -46,7 +46,6 @@ class FitSettings:
     lr_betas: float = 1e-2          # shape units per step
     lr_displacement: float = 1e-4   # metres per step
     displacement_grid: str = "fine"   # displacements per point of the subdivided mesh, or "coarse": of the unsubdivided one
-    silhouette_coverage: bool = False   # the silhouette term compares alpha with the mask's sub-pixel coverage
     lr_appearance: float = 1e-2
     solve_albedo: bool = True       # the final albedo solved from the frames (albedo_solve.py)
     shadows: str = "auto"          # auto | on | off
