@@ -149,7 +149,7 @@ def test_coarse_displacements_are_carried_to_every_subdivided_point():
                               transl=np.tile([0.0, 0.0, 0.5], (frames, 1)), keypoints3d=np.zeros((frames, 21, 3)),
                               residual_px=np.zeros(frames), detected=np.ones(frames, dtype=bool))
     coarse = build_avatar(initial, np.arange(frames), 16, "cpu", "coarse")
-    fine = build_avatar(initial, np.arange(frames), 16, "cpu")
+    fine = build_avatar(initial, np.arange(frames), 16, "cpu", "fine")
     assert coarse.displacement.shape[0] == coarse.coarse_model.data.num_vertices
     assert fine.displacement.shape[0] == fine.model.data.num_vertices
     with torch.no_grad():
@@ -163,4 +163,18 @@ def test_coarse_displacements_are_carried_to_every_subdivided_point():
     torch.testing.assert_close(field, 0.5 * (coarse.displacement[parents[:, 0]] + coarse.displacement[parents[:, 1]]))
     field.sum().backward()   # the parameters get gradients through the grid
     assert coarse.displacement.grad.abs().sum() > 0
+    from pipeline.fit.problem import FitError
+    with pytest.raises(FitError, match="displacement_grid must be 'coarse' or 'fine'"):
+        build_avatar(initial, np.arange(frames), 16, "cpu", "medium")
 
+
+
+def test_settings_saved_before_the_coarse_grid_keep_the_fine_one():
+    """A checkpoint's settings from before displacement_grid existed load as the fine grid its
+    displacements were saved on; new fits default to the coarse grid."""
+    from pipeline.fit.settings import FitSettings
+
+    saved = {k: v for k, v in vars(FitSettings()).items() if k != "displacement_grid"}
+    assert FitSettings.from_dict(saved).displacement_grid == "fine"
+    assert FitSettings().displacement_grid == "coarse"
+    assert FitSettings.from_dict(vars(FitSettings())).displacement_grid == "coarse"

@@ -3,6 +3,9 @@
     V = LBS_subdivided(T(shape) + d * n_rest, pose)   (one scalar per subdivided vertex, along
                                                        the normal of the shaped rest surface)
 
+d is the mean of two values of the unsubdivided mesh per subdivided point (its parents:
+`displacement_parents`, FitSettings.displacement_grid "coarse"), or its own value ("fine").
+
 The reference implementation displaces along the *posed* normals after skinning (method_facts);
 we displace the rest surface and then skin it, so that the fitted surface is exactly what a
 linear-blend-skinning rig (Blender's Armature modifier, a game engine) animates: the avatar

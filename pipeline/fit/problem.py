@@ -179,10 +179,12 @@ def _silhouette_weight(clip, avatar, keypoints):
     return (kept if weight is None else weight * kept), int(cuts.any((1, 2)).sum())
 
 
-def build_avatar(initial: InitialEstimate, frames, texture_size, device=None, displacement_grid="fine") -> Avatar:
+def build_avatar(initial: InitialEstimate, frames, texture_size, device=None, displacement_grid="coarse") -> Avatar:
     """A new Avatar over `frames` of the initial estimate, on the subdivided model of its mode
     and side (and the unsubdivided one for the alignment); its displacements on the subdivided
     mesh ("fine") or on the unsubdivided one ("coarse", FitSettings.displacement_grid)."""
+    if displacement_grid not in ("coarse", "fine"):
+        raise FitError(f"displacement_grid must be 'coarse' or 'fine', got {displacement_grid!r}")
     device = default_device(device)
     model = HandModel.load(initial.mode, initial.side, subdivided=True, device=device)
     coarse_model = HandModel.load(initial.mode, initial.side, subdivided=False, device=device)
