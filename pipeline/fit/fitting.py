@@ -136,7 +136,8 @@ def _set_up(sequence, preset, device, shadows, max_steps, hold_out_every, known_
             raise FitError(f"the fit in {known_appearance} has not finished: resume it first")
         shared = {name: known.avatar[name] for name in KNOWN_APPEARANCE}
         # its light comes with its shadows decision
-        settings = dataclasses.replace(settings, shadows="on" if known.state.shadows.on else "off")
+        settings = dataclasses.replace(settings, shadows="on" if known.state.shadows.on else "off",
+                                       displacement_grid=known.settings.displacement_grid)   # its displacements' grid
     problem = build_problem(sequence, settings, frames, device, shared, frozen=tuple(shared))
     return problem, held_out
 
