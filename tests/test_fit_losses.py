@@ -168,13 +168,18 @@ def test_coarse_displacements_are_carried_to_every_subdivided_point():
         build_avatar(initial, np.arange(frames), 16, "cpu", "medium")
 
 
-
 def test_settings_saved_before_the_coarse_grid_keep_the_fine_one():
     """A checkpoint's settings from before displacement_grid existed load as the fine grid its
-    displacements were saved on; new fits default to the coarse grid."""
-    from pipeline.fit.settings import FitSettings
+    displacements were saved on; new fits default to the coarse grid, `full` to the fine one, and
+    an explicit choice wins over the preset's."""
+    from pipeline.fit.settings import FitSettings, settings_for
 
     saved = {k: v for k, v in vars(FitSettings()).items() if k != "displacement_grid"}
     assert FitSettings.from_dict(saved).displacement_grid == "fine"
     assert FitSettings().displacement_grid == "coarse"
     assert FitSettings.from_dict(vars(FitSettings())).displacement_grid == "coarse"
+    assert [settings_for(preset, 150).displacement_grid for preset in ("fast", "balanced", "full")] == \
+        ["coarse", "coarse", "fine"]
+    assert settings_for("full", 150, displacement_grid="coarse").displacement_grid == "coarse"
+    full = settings_for("full", 150)
+    assert FitSettings.from_dict(vars(full)).displacement_grid == "fine"

@@ -46,8 +46,9 @@ class FitSettings:
     lr_betas: float = 1e-2          # shape units per step
     lr_displacement: float = 1e-4   # metres per step
     # displacements per point of the unsubdivided mesh, carried to the subdivided one ("coarse"),
-    # or per subdivided point ("fine", checkpoints from before the choice): the coarse grid's
-    # reposed hands are 26-37% less rough, its other figures equal (docs/fidelity.md)
+    # or per subdivided point ("fine"; also checkpoints from before the choice). `fast`: the coarse
+    # grid's reposed hands are 26-37% less rough, its other figures equal; `full` keeps the fine
+    # grid, whose new poses score 0.7-1.2 dB higher at 448 px (docs/fidelity.md)
     displacement_grid: str = "coarse"
     lr_appearance: float = 1e-2
     solve_albedo: bool = True       # the final albedo solved from the frames (albedo_solve.py)
@@ -85,7 +86,8 @@ PRESETS = {
     "fast": dict(resolution=256, texture_size=256, batch_size=6, steps=(200, 300, 200)),
     "balanced": dict(resolution=320, texture_size=512, batch_size=8, steps=(500, 600, 400), max_frames=90),
     # the paper's schedule: 100 / 50 / 50 epochs over every frame, batches of ~18 frames
-    "full": dict(resolution=448, texture_size=512, batch_size=18, steps=(None, None, None), max_frames=100000),
+    "full": dict(resolution=448, texture_size=512, batch_size=18, steps=(None, None, None), max_frames=100000,
+                 displacement_grid="fine"),
 }
 
 
