@@ -46,9 +46,9 @@ class FitSettings:
     lr_betas: float = 1e-2          # shape units per step
     lr_displacement: float = 1e-4   # metres per step
     # displacements per point of the unsubdivided mesh, carried to the subdivided one ("coarse"),
-    # or per subdivided point ("fine"; also checkpoints from before the choice). `fast`: the coarse
-    # grid's reposed hands are 26-37% less rough, its other figures equal; `full` keeps the fine
-    # grid, whose new poses score 0.7-1.2 dB higher at 448 px (docs/fidelity.md)
+    # or per subdivided point ("fine"; also checkpoints from before the choice). `fast`, `balanced`:
+    # the coarse grid's reposed hands are 26-37% less rough, its other figures equal or better;
+    # `full` keeps the fine grid, whose new poses score 0.7-1.2 dB higher at 448 px (docs/fidelity.md)
     displacement_grid: str = "coarse"
     lr_appearance: float = 1e-2
     solve_albedo: bool = True       # the final albedo solved from the frames (albedo_solve.py)
