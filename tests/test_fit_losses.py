@@ -183,3 +183,19 @@ def test_settings_saved_before_the_coarse_grid_keep_the_fine_one():
     assert settings_for("full", 150, displacement_grid="coarse").displacement_grid == "coarse"
     full = settings_for("full", 150)
     assert FitSettings.from_dict(vars(full)).displacement_grid == "fine"
+
+
+def test_the_presets_texture_follows_the_working_image_size():
+    """The texture is at most the power of two at or above the working images' long side (the
+    preset's resolution, or the clip's own size when smaller: clips are never enlarged)."""
+    from pipeline.fit.settings import settings_for, texture_size_for
+
+    assert [texture_size_for(n) for n in (40, 96, 256, 257, 320, 448, 1080)] == [64, 128, 256, 512, 512, 512, 2048]
+    assert settings_for("full", 150).texture_size == 512                        # size unknown: the preset's
+    assert settings_for("full", 150, image_size=1920).texture_size == 512       # worked at 448 px
+    assert settings_for("full", 150, image_size=448).texture_size == 512
+    assert settings_for("full", 30, image_size=256).texture_size == 256         # the demo clip
+    assert settings_for("balanced", 30, image_size=256).texture_size == 256
+    assert settings_for("fast", 30, image_size=256).texture_size == 256
+    assert settings_for("fast", 30, image_size=96).texture_size == 128
+    assert settings_for("full", 30, image_size=256, texture_size=1024).texture_size == 1024   # the user's choice

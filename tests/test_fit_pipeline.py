@@ -51,6 +51,15 @@ def test_fit_writes_a_complete_avatar(tiny_clip, tmp_path):
                     resolution=96)
 
 
+def test_the_texture_is_no_finer_than_the_clips_pixels(tiny_clip):
+    """A preset's texture shrinks to what the clip's working images can fill (the 96 px clip:
+    128 texels, not `full`'s 512); a texture size the user gives is kept."""
+    problem, _ = fitting._set_up(tiny_clip, "full", "cpu", "off", 1, None, None, {})
+    assert problem.settings.texture_size == 128 and problem.avatar.albedo.shape[-1] == 128
+    problem, _ = fitting._set_up(tiny_clip, "full", "cpu", "off", 1, None, None, {"texture_size": 512})
+    assert problem.settings.texture_size == 512 and problem.avatar.albedo.shape[-1] == 512
+
+
 def test_interrupt_then_resume_reaches_the_same_result(tiny_clip, tmp_path, monkeypatch):
     """Ctrl-C in the middle of stage two saves a checkpoint; --resume finishes the fit with the
     same final loss as an uninterrupted run (within 1%)."""

@@ -119,9 +119,10 @@ def _after_the_stages(problem, state, reporter, save):
 
 def _set_up(sequence, preset, device, shadows, max_steps, hold_out_every, known_appearance, overrides):
     """(FitProblem, held-out frames) of a fit's arguments; bad input is one FitError line."""
-    validate_sequence_folder(sequence)
+    info = validate_sequence_folder(sequence)
     initial = read_initial_estimate(sequence)
-    settings = settings_for(preset, initial.frame_count, shadows=shadows, **overrides)
+    settings = settings_for(preset, initial.frame_count, image_size=max(info.width, info.height), shadows=shadows,
+                            **overrides)
     if max_steps is not None:  # a quick look (and tests): every stage capped
         settings.steps = tuple(min(s, max_steps) for s in settings.steps)
         settings.align_steps = min(settings.align_steps, max_steps)
@@ -146,7 +147,7 @@ def _opening_line(problem, preset, estimate):
     settings, initial = problem.settings, problem.initial
     known = ", appearance known (frozen)" if problem.known_appearance else ""
     return (f"fitting {len(problem.frames)} frames ({initial.mode} mode, {initial.side} hand) with preset {preset}"
-            f"{known}, perceptual term {problem.perceptual_name}, exposure gains {problem.exposure_note}"
+            f"{known} (images {max(problem.clip.images.shape[1:3])} px, texture {settings.texture_size} px), perceptual term {problem.perceptual_name}, exposure gains {problem.exposure_note}"
             + (f"; {problem.mask_cut_frames} masks end mid-forearm (a sleeve?): the silhouette beyond that line is "
                "not compared" if problem.mask_cut_frames else "")
             + f"; expected time {_duration(estimate.expected_seconds)} on {problem.device} "
