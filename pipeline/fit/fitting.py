@@ -147,7 +147,8 @@ def _opening_line(problem, preset, estimate):
     settings, initial = problem.settings, problem.initial
     known = ", appearance known (frozen)" if problem.known_appearance else ""
     return (f"fitting {len(problem.frames)} frames ({initial.mode} mode, {initial.side} hand) with preset {preset}"
-            f"{known} (images {max(problem.clip.images.shape[1:3])} px, texture {settings.texture_size} px), perceptual term {problem.perceptual_name}, exposure gains {problem.exposure_note}"
+            f"{known} (images {max(problem.clip.images.shape[1:3])} px, texture {settings.texture_size} px), "
+            f"perceptual term {problem.perceptual_name}, exposure gains {problem.exposure_note}"
             + (f"; {problem.mask_cut_frames} masks end mid-forearm (a sleeve?): the silhouette beyond that line is "
                "not compared" if problem.mask_cut_frames else "")
             + f"; expected time {_duration(estimate.expected_seconds)} on {problem.device} "
