@@ -18,7 +18,8 @@ import torch  # noqa: E402
 
 from pipeline.fit.energy import batch_energy  # noqa: E402
 from pipeline.fit.problem import build_problem  # noqa: E402
-from pipeline.fit.settings import Stage, settings_for  # noqa: E402
+from pipeline.fit.schedule import StageKind, StageSpec  # noqa: E402
+from pipeline.fit.settings import settings_for  # noqa: E402
 from pipeline.formats.initial_estimate import read_initial_estimate  # noqa: E402
 
 
@@ -26,7 +27,7 @@ def step_milliseconds(sequence, grid, frames, repeats):
     count = read_initial_estimate(sequence).frame_count
     settings = settings_for("fast", count, displacement_grid=grid)
     problem = build_problem(sequence, settings, list(range(0, count, max(1, count // frames)))[:frames], "cpu")
-    stage, batch = Stage("geometry+appearance", 1, True, True), torch.arange(6)
+    stage, batch = StageSpec(StageKind.JOINT, 1), torch.arange(6)
     times = []
     for _ in range(repeats):
         start = time.perf_counter()

@@ -430,7 +430,7 @@ def profile_kind(problem, stage, kind, steps):
     from pipeline.fit.checkpoint import FitState
     from pipeline.fit.stage_run import StageRun
 
-    state = FitState.fresh(len(problem.settings.stages()), "on" if kind.endswith(" shadows") else "off")
+    state = FitState.fresh(problem.settings.schedule(), "on" if kind.endswith(" shadows") else "off")
     generator = torch.Generator().manual_seed(0)
     run = StageRun(problem, stage, state, generator)
     if not run.has_work:
@@ -484,12 +484,12 @@ def fit_profile(args):
     import torch
 
     from pipeline.fit import fitting
-    from pipeline.fit.estimate import step_kind
+    from pipeline.fit.schedule import step_kind
 
     results = {}
     for preset in args.presets.split(","):
         start = time.perf_counter()
-        problem, _ = fitting._set_up(Path(args.sequence), preset, "cpu", "auto", None, None, None,
+        problem, _ = fitting._set_up(Path(args.sequence), fitting.FitJob(preset=preset, device="cpu"),
                                      {"max_frames": args.max_frames})
         settings = problem.settings
         print(f"\n== fit profile: preset {preset}, {len(problem.frames)} frames at {problem.clip.width}x"
@@ -498,12 +498,12 @@ def fit_profile(args):
               f"{time.perf_counter() - start:.0f} s; per kind: one warm-up step, then {args.steps} plain, {args.steps} "
               f"profiled and {args.steps} plain steps on the same batches")
         saved = copy.deepcopy(problem.avatar.state_dict())
-        stages = {stage.name: stage for stage in settings.stages()}
+        stages = {stage.name: stage for stage in settings.schedule()}
         kinds = {}
         try:
             for kind in args.kinds.split(","):
                 stage = stages[kind.split(" ")[0]]
-                if step_kind(stage, kind.endswith(" shadows")) != kind:
+                if str(step_kind(stage, kind.endswith(" shadows"))) != kind:
                     continue
                 begin = time.perf_counter()
                 measured = profile_kind(problem, stage, kind, args.steps)

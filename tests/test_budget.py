@@ -6,11 +6,13 @@ from pipeline.evaluate.exact_clips import write_clip
 from pipeline.fit import fitting
 from pipeline.fit.budget import budget_steps, floor_seconds, parse_budget
 from pipeline.fit.checkpoint import CHECKPOINT_FILE, load_checkpoint
+from pipeline.fit.schedule import StageKind, StepKind
 from pipeline.init import initialise_sequence
 from synth.motions import OPEN
 
-PLANNED = {"align": 100, "geometry": 200, "geometry+appearance": 300, "appearance": 200}
-COST = {"align": 0.5, "geometry": 0.5, "geometry+appearance": 1.2, "appearance": 0.9}   # 690 s in all
+ALIGN, GEOMETRY, JOINT, APPEARANCE = StageKind.ALIGN, StageKind.GEOMETRY, StageKind.JOINT, StageKind.APPEARANCE
+PLANNED = {ALIGN: 100, GEOMETRY: 200, JOINT: 300, APPEARANCE: 200}
+COST = {ALIGN: 0.5, GEOMETRY: 0.5, JOINT: 1.2, APPEARANCE: 0.9}   # 690 s in all
 
 
 def seconds(steps, done=None):
@@ -35,13 +37,13 @@ def test_a_budget_the_schedule_fits_in_changes_nothing():
 
 def test_the_appearance_stage_goes_first_then_geometry_then_the_alignment():
     cut = budget_steps(PLANNED, {}, COST, 600)          # 90 s over: the appearance stage alone
-    assert cut == {**PLANNED, "appearance": 100} and seconds(cut) <= 600
+    assert cut == {**PLANNED, APPEARANCE: 100} and seconds(cut) <= 600
     cut = budget_steps(PLANNED, {}, COST, 480)          # appearance at its floor, geometry cut
-    assert cut["appearance"] == 50 and PLANNED["geometry"] > cut["geometry"] >= 50
-    assert cut["align"] == 100 and cut["geometry+appearance"] == 300 and seconds(cut) <= 480
+    assert cut[APPEARANCE] == 50 and PLANNED[GEOMETRY] > cut[GEOMETRY] >= 50
+    assert cut[ALIGN] == 100 and cut[JOINT] == 300 and seconds(cut) <= 480
     cut = budget_steps(PLANNED, {}, COST, 200)          # every floor reached: all alike
     assert seconds(cut) <= 200 and all(cut[name] >= 1 for name in cut)
-    assert cut["geometry+appearance"] < 300 and cut["align"] < 30
+    assert cut[JOINT] < 300 and cut[ALIGN] < 30
 
 
 def test_the_floor_is_where_every_stage_starts_being_cut_alike():
@@ -49,9 +51,9 @@ def test_the_floor_is_where_every_stage_starts_being_cut_alike():
     joint stage keeps every step; below it, it is cut too (the fit says the budget is short)."""
     floor = floor_seconds(PLANNED, {}, COST)
     assert floor == 30 * 0.5 + 50 * 0.5 + 300 * 1.2 + 50 * 0.9
-    assert budget_steps(PLANNED, {}, COST, floor + 1)["geometry+appearance"] == 300
-    assert budget_steps(PLANNED, {}, COST, floor - 10)["geometry+appearance"] < 300
-    done = {"align": 100, "geometry": 120}                # steps taken are not charged again
+    assert budget_steps(PLANNED, {}, COST, floor + 1)[JOINT] == 300
+    assert budget_steps(PLANNED, {}, COST, floor - 10)[JOINT] < 300
+    done = {ALIGN: 100, GEOMETRY: 120}                    # steps taken are not charged again
     assert floor_seconds(PLANNED, done, COST) == 300 * 1.2 + 50 * 0.9
 
 
@@ -64,9 +66,9 @@ def test_a_short_budget_says_which_preset_would_suit_it():
 
 
 def test_steps_already_taken_are_kept_and_not_charged():
-    done = {"align": 100, "geometry": 120}
+    done = {ALIGN: 100, GEOMETRY: 120}
     cut = budget_steps(PLANNED, done, COST, 300)
-    assert cut["align"] == 100 and cut["geometry"] >= 120 and seconds(cut, done) <= 300
+    assert cut[ALIGN] == 100 and cut[GEOMETRY] >= 120 and seconds(cut, done) <= 300
 
 
 @pytest.fixture(scope="module")
@@ -77,57 +79,58 @@ def tiny_clip(tmp_path_factory):
     return folder
 
 
-class FakeEstimate:
-    """What BudgetKeeper reads of a fit's estimate, with costs known: every step costs COST."""
-
-    def __init__(self, settings, state):
-        from pipeline.fit.estimate import StepCosts, TimeLeft, remaining_plan
-
-        self.settings, self.state = settings, state
-        self.costs = StepCosts(dict(COST), after_stages=10.0, calibrated=True)
-        self.time_left = TimeLeft(self.costs)
-        self.active = lambda stage: True
-        self.plan = lambda: remaining_plan(settings.stages(), state, "off", self.active)
-
-
-def test_the_keeper_replans_with_the_rates_the_fit_runs_at():
-    from types import SimpleNamespace
-
+def test_the_keeper_returns_a_new_schedule_with_the_rates_the_fit_runs_at():
+    """Each plan is a new Schedule; the settings and the schedule it replaces stay as they were."""
     from pipeline.fit.budget import AIM, BudgetKeeper
     from pipeline.fit.checkpoint import FitState
+    from pipeline.fit.estimate import StepCosts, TimeLeft, remaining_plan
     from pipeline.fit.settings import settings_for
 
     settings = settings_for("fast", 30, shadows="off", budget_seconds=610.0)
-    state = FitState.fresh(4, "off")
-    estimate = FakeEstimate(settings, state)
-    keeper = BudgetKeeper(SimpleNamespace(settings=settings), state, estimate, started=0.0)
-    keeper.replan(now=0.0)     # 690 s planned, 0.97 * 610 - 10 available: the appearance stage cut
-    assert settings.align_steps == 100 and settings.steps[:2] == (200, 300) and settings.steps[2] < 200
-    assert seconds({"align": 100, "geometry": 200, "geometry+appearance": 300, "appearance": settings.steps[2]}) \
-        <= AIM * 610 - 10
+    planned = settings.schedule()
+    state = FitState.fresh(planned, "off")
+    time_left = TimeLeft(StepCosts({StepKind(kind): cost for kind, cost in COST.items()}, after_stages=10.0,
+                                   calibrated=True))
+    keeper = BudgetKeeper(610.0, planned, lambda stage: True, started=0.0)
+
+    def replan(now):
+        return keeper.replan(now, state, remaining_plan(state.schedule, state, "off", lambda stage: True), time_left,
+                             after_stages_seconds=10.0)
+
+    first = replan(now=0.0)     # 690 s planned, 0.97 * 610 - 10 available: the appearance stage cut
+    steps = first.steps()
+    assert (steps[ALIGN], steps[GEOMETRY], steps[JOINT]) == (100, 200, 300) and steps[APPEARANCE] < 200
+    assert seconds(steps) <= AIM * 610 - 10
+    assert state.schedule is planned and planned.steps() == PLANNED                  # the old one untouched
+    assert settings.steps == (200, 300, 200) and settings.align_steps == 100        # the settings too
     # the alignment done (50 s), the geometry stage half-way, and the machine running twice as slow
-    state.stage, state.step = 1, 100
+    state.schedule, state.stage, state.step = first, 1, 100
     for _ in range(20):
-        estimate.time_left.step("geometry", 2 * COST["geometry"])
-    keeper.replan(now=150.0)
-    geometry, joint, appearance = settings.steps
-    assert settings.align_steps == 100                    # it ended: it keeps its steps
-    assert geometry == 100 and joint < 300 and joint / 300 > appearance / 200   # stopped where it stands
-    assert keeper.estimate.time_left.seconds_left(estimate.plan()) < 1.1 * (610 - 150)
+        time_left.step(StepKind(GEOMETRY), 2 * COST[GEOMETRY])
+    second = replan(now=150.0)
+    steps = second.steps()
+    assert steps[ALIGN] == 100                            # it ended: it keeps its steps
+    assert steps[GEOMETRY] == 100 and steps[JOINT] < 300 and steps[JOINT] / 300 > steps[APPEARANCE] / 200
+    assert first.steps()[GEOMETRY] == 200                 # the plan it replaced, unchanged
+    state.schedule = second
+    assert time_left.seconds_left(remaining_plan(second, state, "off", lambda stage: True)) < 1.1 * (610 - 150)
 
 
 def test_a_budgeted_fit_cuts_its_schedule_and_resumes_on_its_plan(tiny_clip, tmp_path, capsys):
     """A budget below anything the fit could do: every stage cut, down to a step if need be,
-    and the fit ends; resumed without --budget it keeps the plan it saved (no "other settings"
-    error)."""
+    and the fit ends; the settings keep what was asked, the state the schedule in force;
+    resumed without --budget it keeps the plan it saved (no "other settings" error)."""
     options = dict(progress="none", texture_size=64, batch_size=2, resolution=96, steps=(40, 60, 40))
     out = tmp_path / "budgeted"
     report = fitting.fit(tiny_clip, out, budget_seconds=2, **options)
-    saved = load_checkpoint(out / CHECKPOINT_FILE, "cpu").settings
-    assert saved.budget_seconds == 2 and saved.align_steps < 100
-    assert all(1 <= cut < planned for cut, planned in zip(saved.steps, (40, 60, 40)))
+    saved = load_checkpoint(out / CHECKPOINT_FILE, "cpu")
+    assert saved.settings.budget_seconds == 2 and saved.settings.steps == (40, 60, 40)
+    cut = saved.state.schedule.steps()
+    assert cut[ALIGN] < 100 and all(1 <= cut[kind] < planned for kind, planned in
+                                    zip((GEOMETRY, JOINT, APPEARANCE), (40, 60, 40)))
+    assert report["schedule"] == {kind.value: steps for kind, steps in cut.items()}
     assert report["estimate"]["calibrated"] and report["estimate"]["budget_seconds"] == 2
     assert "so every stage is cut short" in capsys.readouterr().err    # the opening line says so
     again = fitting.fit(tiny_clip, out, resume=True, **options)
-    assert load_checkpoint(out / CHECKPOINT_FILE, "cpu").settings.steps == saved.steps
+    assert load_checkpoint(out / CHECKPOINT_FILE, "cpu").state.schedule == saved.state.schedule
     assert again["metrics"] == report["metrics"]

@@ -10,36 +10,41 @@ import torch
 from pipeline.evaluate.exact_clips import write_clip
 from pipeline.fit.checkpoint import FitState
 from pipeline.fit import estimate as estimate_module
-from pipeline.fit.estimate import FitEstimate, StepCosts, TimeLeft, calibrate, remaining_plan, step_kind
+from pipeline.fit.estimate import (FitEstimate, StepCosts, TimeLeft, active_stages, calibrate, measure_step_costs,
+                                   remaining_plan)
 from pipeline.fit.problem import build_problem
+from pipeline.fit.schedule import StageKind, StepKind, step_kind
 from pipeline.fit.settings import settings_for
 from pipeline.init import initialise_sequence
 from synth.motions import OPEN
 
-STAGES = settings_for("fast", 30).stages()     # align 100, geometry 200, joint 300, appearance 200
+STAGES = settings_for("fast", 30).schedule()     # align 100, geometry 200, joint 300, appearance 200
+ALIGN, GEOMETRY, JOINT, APPEARANCE = (StepKind(kind) for kind in StageKind if kind is not StageKind.HELD_OUT)
+JOINT_SHADOWS, APPEARANCE_SHADOWS = StepKind(StageKind.JOINT, True), StepKind(StageKind.APPEARANCE, True)
 
 
 def test_the_plan_splits_an_undecided_auto_shadowing_after_the_decision():
-    state = FitState.fresh(len(STAGES), "auto")
+    state = FitState.fresh(STAGES, "auto")
     plan = dict(remaining_plan(STAGES, state, "auto", lambda stage: True))
-    assert plan == {"align": 100, "geometry": 200, "geometry+appearance": 150 + 75, "geometry+appearance shadows": 75,
-                    "appearance": 100, "appearance shadows": 100}
+    assert plan == {ALIGN: 100, GEOMETRY: 200, JOINT: 150 + 75, JOINT_SHADOWS: 75,
+                    APPEARANCE: 100, APPEARANCE_SHADOWS: 100}
     state.stage, state.step = 2, 200                  # past the decision's step, not yet decided
     plan = dict(remaining_plan(STAGES, state, "auto", lambda stage: True))
-    assert plan["geometry+appearance"] == 50 and plan["geometry+appearance shadows"] == 50 and "geometry" not in plan
+    assert plan[JOINT] == 50 and plan[JOINT_SHADOWS] == 50 and GEOMETRY not in plan
     state.shadows.decided, state.shadows.on = True, True
-    assert remaining_plan(STAGES, state, "auto", lambda stage: True) == [("geometry+appearance shadows", 100),
-                                                                         ("appearance shadows", 200)]
-    frozen_appearance = remaining_plan(STAGES, FitState.fresh(len(STAGES), "off"), "off",
-                                       lambda stage: stage.name != "appearance")
-    assert [kind for kind, _ in frozen_appearance] == ["align", "geometry", "geometry+appearance"]
+    assert remaining_plan(STAGES, state, "auto", lambda stage: True) == [(JOINT_SHADOWS, 100), (APPEARANCE_SHADOWS, 200)]
+    frozen_appearance = remaining_plan(STAGES, FitState.fresh(STAGES, "off"), "off",
+                                       lambda stage: stage.kind is not StageKind.APPEARANCE)
+    assert [kind for kind, _ in frozen_appearance] == [ALIGN, GEOMETRY, JOINT]
+    assert [str(kind) for kind in plan] == ["geometry+appearance", "geometry+appearance shadows",
+                                            "appearance", "appearance shadows"]   # as reports name them
 
 
 def simulated_fit(costs, slowdown, slowdown_from, stages=STAGES):
     """(elapsed, estimated seconds left, true seconds left) after every step of a fit whose steps
     take `slowdown[kind]` times their calibrated cost, once `slowdown_from` seconds have passed
     (a second process starting), and the same per-step jitter the median must absorb."""
-    state = FitState.fresh(len(stages), "off")
+    state = FitState.fresh(stages, "off")
     timer = TimeLeft(costs)
     jitter = np.random.default_rng(0)
     durations, kinds = [], []
@@ -51,7 +56,7 @@ def simulated_fit(costs, slowdown, slowdown_from, stages=STAGES):
             durations.append(costs.seconds[kind] * factor * jitter.uniform(0.9, 1.1))
             kinds.append(kind)
             elapsed += durations[-1]
-    after = costs.after_stages * slowdown["appearance"]
+    after = costs.after_stages * slowdown[APPEARANCE]
     total = elapsed + after
     trace, elapsed, step = [], 0.0, 0
     for index, stage in enumerate(stages):
@@ -66,14 +71,13 @@ def simulated_fit(costs, slowdown, slowdown_from, stages=STAGES):
     return trace
 
 
-COSTS = StepCosts({"align": 0.4, "geometry": 0.5, "geometry+appearance": 1.2, "appearance": 0.9}, after_stages=30.0,
-                  calibrated=True)
+COSTS = StepCosts({ALIGN: 0.4, GEOMETRY: 0.5, JOINT: 1.2, APPEARANCE: 0.9}, after_stages=30.0, calibrated=True)
 
 
 @pytest.mark.parametrize("slowdown, slowdown_from", [
-    ({"align": 1.0, "geometry": 1.0, "geometry+appearance": 1.0, "appearance": 1.0}, 0.0),   # as calibrated
-    ({"align": 1.6, "geometry": 1.5, "geometry+appearance": 1.7, "appearance": 1.6}, 0.0),   # a busy machine
-    ({"align": 1.8, "geometry": 1.8, "geometry+appearance": 1.8, "appearance": 1.8}, 120.0),  # busy from 2 min on
+    ({ALIGN: 1.0, GEOMETRY: 1.0, JOINT: 1.0, APPEARANCE: 1.0}, 0.0),   # as calibrated
+    ({ALIGN: 1.6, GEOMETRY: 1.5, JOINT: 1.7, APPEARANCE: 1.6}, 0.0),   # a busy machine
+    ({ALIGN: 1.8, GEOMETRY: 1.8, JOINT: 1.8, APPEARANCE: 1.8}, 120.0),  # busy from 2 min on
 ])
 def test_time_left_stays_within_a_quarter_of_the_truth_after_the_first_minute(slowdown, slowdown_from):
     """...or, when the machine's speed changes (no estimate sees that coming), within a minute
@@ -105,13 +109,12 @@ def problem(tmp_path_factory):
 
 def test_calibration_times_each_kind_and_leaves_the_avatar_bit_for_bit(problem):
     before = {name: value.clone() for name, value in problem.avatar.state_dict().items()}
-    stages = problem.settings.stages()
-    kinds = ["align", "geometry", "geometry+appearance", "geometry+appearance shadows", "appearance shadows"]
-    costs = calibrate(problem, stages, kinds)
+    kinds = [ALIGN, GEOMETRY, JOINT, JOINT_SHADOWS, APPEARANCE_SHADOWS]
+    costs = calibrate(problem, problem.settings.schedule(), kinds)
     assert costs.calibrated and costs.calibration_seconds > 0
     assert all(costs.seconds[kind] > 0 for kind in kinds)
     # shading costs: a joint step renders colour on top of the geometry step's silhouette
-    assert costs.seconds["geometry+appearance"] > costs.seconds["geometry"]
+    assert costs.seconds[JOINT] > costs.seconds[GEOMETRY]
     assert costs.after_stages > 0
     for name, value in problem.avatar.state_dict().items():
         assert torch.equal(value, before[name]), name
@@ -126,8 +129,9 @@ def test_the_time_observers_take_is_no_steps_time(problem, monkeypatch):
     monkeypatch.setattr(estimate_module.time, "perf_counter", lambda: clock[0])
     small = dataclasses.replace(problem, settings=dataclasses.replace(problem.settings, steps=(10, 10, 10),
                                                                       align_steps=10))
-    state = FitState.fresh(len(small.settings.stages()), "off")
-    estimate = FitEstimate(small, state, clock[0])
+    state = FitState.fresh(small.settings.schedule(), "off")
+    active = active_stages(small, state.schedule)
+    estimate = FitEstimate(small, state, measure_step_costs(small, state, active), active)
     assert not estimate.costs.calibrated
     for step in range(8):
         clock[0] += 2.0                      # a step
@@ -135,7 +139,7 @@ def test_the_time_observers_take_is_no_steps_time(problem, monkeypatch):
             clock[0] += 30.0
             state.measure_seconds += 30.0
         state.step += 1
-        estimate.step("align", None)
-    assert list(estimate.time_left.recent["align"]) == pytest.approx([2.0] * 8)
+        estimate.step(ALIGN)
+    assert list(estimate.time_left.recent[ALIGN]) == pytest.approx([2.0] * 8)
     assert estimate.fitting_seconds(clock[0]) == pytest.approx(16.0)
     assert estimate.trace[-1][0] == pytest.approx(10.0)   # the first trace point after 10 s of fitting

@@ -68,9 +68,8 @@ class CurveRecorder(FitObserver):
     @torch.no_grad()
     def _measure(self, problem, state):
         started = time.perf_counter()
-        stages = problem.settings.stages()
         point = {"fit_seconds": state.fit_seconds,
-                 "stage": stages[state.stage].name if state.stage < len(stages) else "done", "step": state.step}
+                 "stage": "done" if state.finished else state.schedule[state.stage].name, "step": state.step}
         _, _, scores = score_renders(problem, bool(state.shadows.on))
         point.update(silhouette_iou_mean=float(np.mean(scores["silhouette_iou"])),
                      silhouette_iou_min=scores["silhouette_iou_min"], psnr_mean=scores["psnr_mean"],

@@ -4,9 +4,9 @@ The fit (fit(..., hold_out_every=N)) leaves them out and lists them in report.js
 fit problem is built over them (fit/problem.py, the fit's own builder and settings) with shape,
 displacements and textures taken from the fit's checkpoint and frozen, the light taken from it
 and fitted, and the per-frame pose and translation starting from init.npz. One stage of the
-fit's own steps (fit/stage_run.py), every held-out frame in every step, minimises the fit's
-silhouette, keypoint-anchor, photometric and perceptual terms with the fit's weights (the
-other terms weighted zero). Self-shadowing is as the fit decided. Then PSNR and L1 in the
+fit's own steps (fit/stage_run.py), a stage of kind HELD_OUT with every held-out frame in every
+step, minimises the energy terms that count in that kind (fit/energy_terms.py: silhouette,
+keypoint anchor, photometric and perceptual) with the fit's weights. Self-shadowing is as the fit decided. Then PSNR and L1 in the
 mask, MS-SSIM and silhouette IoU per frame and mean (fit/outputs.image_scores).
 """
 from __future__ import annotations
@@ -22,13 +22,14 @@ from ..fit.checkpoint import FitState
 from ..fit.outputs import score_renders, write_grid
 from ..fit.progress import Progress
 from ..fit.problem import build_problem, default_device
-from ..fit.settings import Stage
+from ..fit.energy_terms import ENERGY_TERMS
+from ..fit.schedule import Schedule, StageKind, StageSpec
 from ..fit.stage_run import StageRun
 from ..formats.fit_report import HELD_OUT_FRAMES
 from ..formats.initial_estimate import read_initial_estimate
 from .finished_fit import EvaluationError, load_finished_fit
 
-HELD_OUT_TERMS = ("silhouette", "keypoint_anchor", "photometric", "perceptual")
+HELD_OUT_TERMS = tuple(name for name, term in ENERGY_TERMS.items() if StageKind.HELD_OUT in term.stages)
 FROZEN = SHAPE + TEXTURES     # taken from the fit, never changed (the light is taken, then fitted)
 
 
@@ -67,14 +68,13 @@ def evaluate_held_out(fit_folder, sequence, frames=None, steps=100, device=None,
     count = read_initial_estimate(sequence).frame_count
     if frames.min() < 0 or frames.max() >= count:
         raise EvaluationError(f"held-out frames {frames.tolist()} outside the clip's {count} frames")
-    weights = {name: (value if name in HELD_OUT_TERMS else 0.0) for name, value in saved.settings.weights.items()}
-    settings = dataclasses.replace(saved.settings, weights=weights)
+    settings = saved.settings
     problem = build_problem(Path(sequence), settings, frames, device,
                             shared={name: saved.avatar[name] for name in FROZEN + LIGHT}, frozen=FROZEN)
     shadows = bool(saved.state.shadows.on)
-    state = FitState.fresh(1, "on" if shadows else "off")
-    run = StageRun(problem, Stage("held-out", steps, geometry=True, appearance=True, all_frames=True), state,
-                   torch.Generator().manual_seed(settings.seed))
+    schedule = Schedule((StageSpec(StageKind.HELD_OUT, steps),))
+    state = FitState.fresh(schedule, "on" if shadows else "off")
+    run = StageRun(problem, schedule[0], state, torch.Generator().manual_seed(settings.seed))
 
     def loss_and_scores():
         with torch.no_grad():

@@ -6,7 +6,8 @@
 from .checkpoint import CHECKPOINT_FILE, FitState, load_checkpoint
 from .fitting import FitObserver, fit
 from .problem import FitError, FitProblem, build_problem
-from .settings import PRESETS, FitSettings, Stage, settings_for
+from .schedule import Schedule, StageKind, StageSpec
+from .settings import PRESETS, FitSettings, settings_for
 
-__all__ = ["fit", "FitObserver", "FitError", "FitProblem", "build_problem", "FitSettings", "Stage", "PRESETS",
-           "settings_for", "FitState", "load_checkpoint", "CHECKPOINT_FILE"]
+__all__ = ["fit", "FitObserver", "FitError", "FitProblem", "build_problem", "FitSettings", "Schedule", "StageKind",
+           "StageSpec", "PRESETS", "settings_for", "FitState", "load_checkpoint", "CHECKPOINT_FILE"]

@@ -12,13 +12,16 @@ changes nothing: the fit ends early.
 
 The plan is made with the step costs measured before the stages (estimate.calibrate) and made
 again every REPLAN_STEPS steps with the rates the fit actually runs at, so a fit that runs
-slower than measured still ends on time.
+slower than measured still ends on time. Each plan is a new schedule (schedule.Schedule); the
+settings are never changed.
 """
 from __future__ import annotations
 
 import re
 
-CUT_ORDER = (("appearance", 0.25), ("geometry", 0.25), ("align", 0.3))
+from .schedule import Schedule, StageKind, StepKind
+
+CUT_ORDER = ((StageKind.APPEARANCE, 0.25), (StageKind.GEOMETRY, 0.25), (StageKind.ALIGN, 0.3))
 REPLAN_STEPS = 10
 AIM = 0.97          # plan for this share of the time left (the last steps and the outputs vary)
 
@@ -34,7 +37,7 @@ def parse_budget(text) -> float:
 
 
 def budget_steps(planned, done, seconds_per_step, seconds) -> dict:
-    """Steps of each stage (name -> total steps, those done included) that fit in `seconds`.
+    """Steps of each stage (StageKind -> total steps, those done included) that fit in `seconds`.
     `planned`: the schedule's steps per stage; `done`: steps already taken per stage (the
     stages past and the one under way); `seconds_per_step`: per stage, for the steps left."""
     steps = dict(planned)
@@ -66,55 +69,47 @@ def floor_seconds(planned, done, seconds_per_step) -> float:
 
 
 class BudgetKeeper:
-    """Holds a fit to problem.settings.budget_seconds: `replan()` at the start and every
-    REPLAN_STEPS steps rewrites the settings' steps (and the running stage's) to what fits in
-    the time left, costed by `estimate` (estimate.FitEstimate: the plan and the measured rates).
-    `started` is the fit's perf_counter start; `spent_before` the fitting time of earlier
-    sessions of a resumed fit. Time the observers take (the anytime curve's measuring) is not
-    spent from the budget, as it is not fitting time on the curves."""
+    """Holds a fit to `seconds`: `replan()` (at the start and every REPLAN_STEPS steps) returns the
+    schedule that fits in the time left, from `planned` (the settings' schedule; its stages that
+    `active` says have work). `started` is the fit's perf_counter start; `spent_before` the
+    fitting time of earlier sessions of a resumed fit, `measured_before` the observers' time
+    then (FitState.measure_seconds). Time the observers take (the anytime curve's measuring) is
+    not spent from the budget, as it is not fitting time on the curves."""
 
-    def __init__(self, problem, state, estimate, started, spent_before=0.0):
-        self.problem, self.state, self.estimate = problem, state, estimate
-        self.started, self.spent_before, self.measured_before = started, spent_before, state.measure_seconds
-        self.planned = {stage.name: stage.steps for stage in problem.settings.stages() if estimate.active(stage)}
+    def __init__(self, seconds, planned: Schedule, active, started, spent_before=0.0, measured_before=0.0):
+        self.seconds, self.started = seconds, started
+        self.spent_before, self.measured_before = spent_before, measured_before
+        self.planned = {stage.kind: stage.steps for stage in planned if active(stage)}
         self.stage_seconds = self.needed_seconds = None   # of the first plan: for the opening line
-
-    @property
-    def seconds(self):
-        return self.problem.settings.budget_seconds
 
     @property
     def too_short(self):
         """The first plan had to cut every stage below its floor (the budget suits a lighter preset)."""
         return self.stage_seconds is not None and self.stage_seconds < self.needed_seconds
 
-    def spent(self, now):
-        return self.spent_before + now - self.started - (self.state.measure_seconds - self.measured_before)
+    def spent(self, now, state):
+        return self.spent_before + now - self.started - (state.measure_seconds - self.measured_before)
 
-    def replan(self, now, run=None):
-        """New step counts from the time left at `now`; returns the steps still to take."""
-        settings, state, time_left = self.problem.settings, self.state, self.estimate.time_left
-        stages = settings.stages()
+    def replan(self, now, state, plan, time_left, after_stages_seconds) -> Schedule:
+        """The schedule that fits in the time left at `now`, from the one in force
+        (state.schedule), `plan` (estimate.remaining_plan: [(StepKind, steps)] still to take), the
+        rates of `time_left` (estimate.TimeLeft) and the calibrated seconds of the work after
+        the stages."""
         planned, done = {}, {}
-        for index, stage in enumerate(stages):
-            if stage.name in self.planned:
+        for index, stage in enumerate(state.schedule):
+            if stage.kind in self.planned:
                 # a stage that has ended keeps the steps it took
-                planned[stage.name] = stage.steps if index < state.stage else self.planned[stage.name]
-                done[stage.name] = stage.steps if index < state.stage else state.step if index == state.stage else 0
+                planned[stage.kind] = stage.steps if index < state.stage else self.planned[stage.kind]
+                done[stage.kind] = stage.steps if index < state.stage else state.step if index == state.stage else 0
         rates = dict.fromkeys(self.planned, 0.0)
         counts = dict.fromkeys(self.planned, 0.0)
-        for kind, steps in self.estimate.plan():
-            name = kind.split(" ")[0]
-            rates[name] += time_left.rate(kind) * steps
-            counts[name] += steps
-        rates = {name: rates[name] / counts[name] if counts[name] else
-                 time_left.rate(name) for name in rates}
-        available = AIM * (self.seconds - self.spent(now)) - self.estimate.costs.after_stages * time_left.speed
+        for kind, steps in plan:
+            rates[kind.stage] += time_left.rate(kind) * steps
+            counts[kind.stage] += steps
+        rates = {stage: rates[stage] / counts[stage] if counts[stage] else time_left.rate(StepKind(stage))
+                 for stage in rates}
+        available = AIM * (self.seconds - self.spent(now, state)) - after_stages_seconds * time_left.speed
         steps = budget_steps(planned, done, rates, available)
         if self.stage_seconds is None:
             self.stage_seconds, self.needed_seconds = available, floor_seconds(planned, done, rates)
-        settings.align_steps = steps.get("align", settings.align_steps)
-        settings.steps = tuple(steps.get(stage.name, stage.steps) for stage in stages[1:])
-        if run is not None:
-            run.stage = settings.stages()[state.stage]
-        return int(round(sum(steps for _, steps in self.estimate.plan())))
+        return state.schedule.with_steps(steps)

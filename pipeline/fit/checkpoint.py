@@ -15,12 +15,14 @@ from pathlib import Path
 import torch
 
 from .problem import FitError
+from .schedule import Schedule
 from .settings import FitSettings
 
 CHECKPOINT_FILE = "checkpoint.pt"
 CHECKPOINT_FORMAT = "harp-fit-checkpoint"
-CHECKPOINT_VERSION = 3          # 3: per-frame exposure gains (avatar "exposure", settings.exposure)
-READABLE_VERSIONS = (2, 3)      # a finished fit of version 2 reads as one with its gains off
+CHECKPOINT_VERSION = 4          # 3: per-frame exposure gains (avatar "exposure", settings.exposure); 4: the
+#                                 schedule in force in the state (a budget no longer rewrites the settings)
+READABLE_VERSIONS = (2, 3, 4)   # a finished fit of version 2 reads as one with its gains off
 
 
 @dataclasses.dataclass
@@ -39,9 +41,11 @@ class ShadowDecision:
 
 @dataclasses.dataclass
 class FitState:
-    """Where a fit stands: the stage under way and the steps done in it, the time spent per
-    stage, the loss history, the events (rollbacks) and the frames still to draw this epoch."""
+    """Where a fit stands: the schedule in force (the settings' plan, or a budget's), the stage
+    under way and the steps done in it, the time spent per stage, the loss history, the events
+    (rollbacks) and the frames still to draw this epoch."""
 
+    schedule: Schedule
     stage_seconds: list                 # seconds of fitting per stage (measuring excluded)
     shadows: ShadowDecision
     stage: int = 0                      # index of the stage under way (len(stages) when done)
@@ -54,20 +58,27 @@ class FitState:
     albedo_solve: dict | None = None    # albedo_solve.solve_avatar_albedo's figures, once it has run
 
     @classmethod
-    def fresh(cls, stage_count, shadows="auto"):
-        return cls(stage_seconds=[0.0] * stage_count, shadows=ShadowDecision.requested_as(shadows))
+    def fresh(cls, schedule: Schedule, shadows="auto"):
+        return cls(schedule=schedule, stage_seconds=[0.0] * len(schedule), shadows=ShadowDecision.requested_as(shadows))
+
+    @property
+    def finished(self) -> bool:
+        return self.stage >= len(self.schedule)
 
     @property
     def fit_seconds(self) -> float:
         return float(sum(self.stage_seconds))
 
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """Plain values (torch's safe loader reads them)."""
+        values = {field.name: getattr(self, field.name) for field in dataclasses.fields(self)}
+        return {**values, "schedule": self.schedule.to_list(), "shadows": dataclasses.asdict(self.shadows)}
 
     @classmethod
     def from_dict(cls, values) -> "FitState":
         values = dict(values)
         values["shadows"] = ShadowDecision(**values["shadows"])
+        values["schedule"] = Schedule.from_list(values["schedule"])
         return cls(**values)
 
 
@@ -105,10 +116,13 @@ def load_checkpoint(path, device=None) -> Checkpoint:
     if saved.get("format") != CHECKPOINT_FORMAT or version not in READABLE_VERSIONS:
         raise FitError(f"{path} is a checkpoint of another harp version ({version}; this one reads "
                        f"{', '.join(map(str, READABLE_VERSIONS))}): fit again")
-    settings, avatar = dict(saved["settings"]), dict(saved["avatar"])
+    settings, avatar, state = dict(saved["settings"]), dict(saved["avatar"]), dict(saved["state"])
     if version == 2:     # before exposure gains: they were off
         settings["exposure"] = "off"
         avatar["exposure"] = torch.zeros(len(avatar["global_orient"]), 3, dtype=avatar["global_orient"].dtype,
                                          device=avatar["global_orient"].device)
-    return Checkpoint(FitSettings.from_dict(settings), FitState.from_dict(saved["state"]),
+    settings = FitSettings.from_dict(settings)
+    if version < 4:      # the schedule in force was the settings' steps (a budget rewrote them)
+        state["schedule"] = settings.schedule().to_list()
+    return Checkpoint(settings, FitState.from_dict(state),
                       avatar, saved["optimiser"], saved["generator"], version)

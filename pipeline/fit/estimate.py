@@ -13,7 +13,8 @@ albedo solve, the texture fill, the outputs: every frame rendered a few times) i
 the appearance step's cost per frame.
 
 Small fits (tests, quick looks) skip the calibration: their estimate uses FALLBACK_COSTS.
-FitEstimate puts these together for `fit()`, with the time budget (budget.py) when there is one.
+`measure_step_costs` is the fit's calibration step; FitEstimate reads its costs and, with a
+time budget (budget.py), puts the budget's new schedules in force as the fit runs.
 """
 from __future__ import annotations
 
@@ -28,8 +29,8 @@ import torch
 
 from .budget import REPLAN_STEPS, BudgetKeeper
 from .checkpoint import FitState
-from .settings import Stage
-from .stage_run import StageRun, parameter_groups
+from .schedule import SHADOWS_DECIDED_IN, Schedule, StageKind, StepKind, step_kind
+from .stage_run import StageRun, stage_has_work
 
 WARM_UP_STEPS = 1            # untimed steps of each kind first (a new optimiser's state, allocations)
 TIMED_STEPS = 2              # timed steps per kind of step
@@ -40,14 +41,12 @@ SPEED_PRIOR_SECONDS = 20.0   # the machine's observed speed counts once this muc
 SPEED_MEMORY_SECONDS = 60.0  # ...and follows a change (another process starting) over about this long
 AFTER_STAGES_FACTOR = 6.5    # albedo solve + fill + outputs: this many appearance steps per batch of frames
 #                              (measured on the 150-frame clip with the fused renderer: 5.7 on `fast`, 7.3-8.5 on `full`)
+
+
 # seconds per step at 256 px and batches of 6 (the alignment: per frame), measured on a 2-core CPU
-FALLBACK_COSTS = {"align": 0.03, "geometry": 0.5, "geometry+appearance": 1.1, "geometry+appearance shadows": 1.4,
-                  "appearance": 0.8, "appearance shadows": 1.1}
-
-
-def step_kind(stage: Stage, shadows: bool) -> str:
-    """The kind of a step for its cost: the stage, and self-shadowing where it renders shading."""
-    return stage.name + (" shadows" if shadows and stage.appearance else "")
+FALLBACK_COSTS = {StepKind(StageKind.ALIGN): 0.03, StepKind(StageKind.GEOMETRY): 0.5, StepKind(StageKind.JOINT): 1.1,
+                  StepKind(StageKind.JOINT, True): 1.4, StepKind(StageKind.APPEARANCE): 0.8,
+                  StepKind(StageKind.APPEARANCE, True): 1.1}
 
 
 @dataclasses.dataclass
@@ -64,13 +63,13 @@ class StepCosts:
         return sum(self.seconds[kind] * steps for kind, steps in plan) + self.after_stages
 
 
-def remaining_plan(stages, state: FitState, shadows_requested: str, active) -> list:
-    """[(kind, steps)] still to take from `state` on; `active(stage)` says whether a stage has
-    anything to move. An undecided `auto` self-shadowing (decided half-way through the joint
-    stage) counts its later steps half with, half without shadows."""
+def remaining_plan(schedule: Schedule, state: FitState, shadows_requested: str, active) -> list:
+    """[(StepKind, steps)] still to take of `schedule` from `state` on; `active(stage)` says
+    whether a stage has anything to move. An undecided `auto` self-shadowing (decided half-way
+    through the joint stage) counts its later steps half with, half without shadows."""
     decision = state.shadows
     plan = []
-    for index, stage in enumerate(stages):
+    for index, stage in enumerate(schedule):
         if index < state.stage or not active(stage):
             continue
         steps = stage.steps - (state.step if index == state.stage else 0)
@@ -81,7 +80,7 @@ def remaining_plan(stages, state: FitState, shadows_requested: str, active) -> l
             continue
         # the decision comes half-way through the joint stage: the steps before it take none
         done = state.step if index == state.stage else 0
-        before = max(0, stage.steps // 2 - done) if stage.name == "geometry+appearance" else 0
+        before = max(0, stage.steps // 2 - done) if stage.kind is SHADOWS_DECIDED_IN else 0
         undecided = steps - before
         plan += [(step_kind(stage, False), before + undecided / 2), (step_kind(stage, True), undecided / 2)]
     return [(kind, steps) for kind, steps in plan if steps > 0]
@@ -91,15 +90,33 @@ def fallback_costs(settings, frame_count) -> StepCosts:
     """The cost model of a small fit: FALLBACK_COSTS scaled by batch and working size."""
     scale = (settings.batch_size / 6) * (settings.resolution / 256) ** 2
     seconds = {kind: cost * scale for kind, cost in FALLBACK_COSTS.items()}
-    seconds["align"] = FALLBACK_COSTS["align"] * frame_count * (settings.resolution / 256) ** 2
+    align = StepKind(StageKind.ALIGN)
+    seconds[align] = FALLBACK_COSTS[align] * frame_count * (settings.resolution / 256) ** 2
     return StepCosts(seconds, _after_stages(seconds, settings, frame_count), calibrated=False)
 
 
 def _after_stages(seconds, settings, frame_count):
-    return AFTER_STAGES_FACTOR * seconds["appearance"] * frame_count / settings.batch_size
+    return AFTER_STAGES_FACTOR * seconds[StepKind(StageKind.APPEARANCE)] * frame_count / settings.batch_size
 
 
-def calibrate(problem, stages, kinds) -> StepCosts:
+def active_stages(problem, schedule: Schedule):
+    """`active(stage)`: whether a stage of the kind has anything to move, as planned in `schedule`
+    (decided once: a budget that cuts a stage's steps does not make it inactive)."""
+    active = {stage.kind: stage_has_work(problem, stage) for stage in schedule}
+    return lambda stage: active[stage.kind]
+
+
+def measure_step_costs(problem, state: FitState, active) -> StepCosts:
+    """The fit's calibration step: the step costs of the plan still to take, measured on the
+    problem (calibrate) when the fit is long enough to pay for it or runs on a budget, else the
+    fallback model's."""
+    plan = remaining_plan(state.schedule, state, problem.settings.shadows, active)
+    if problem.settings.budget_seconds is not None or sum(steps for _, steps in plan) >= CALIBRATE_MIN_STEPS:
+        return calibrate(problem, state.schedule, list(dict.fromkeys(kind for kind, _ in plan)))
+    return fallback_costs(problem.settings, len(problem.frames))
+
+
+def calibrate(problem, schedule: Schedule, kinds) -> StepCosts:
     """Times TIMED_STEPS throwaway steps of each kind in `kinds` on the problem (the StageRun of
     the fit, on a scratch state and random generator), each after WARM_UP_STEPS (a kind's first
     step runs slower: a new optimiser's state, new buffer sizes; one warm-up shared by all kinds
@@ -107,13 +124,12 @@ def calibrate(problem, stages, kinds) -> StepCosts:
     avatar's parameters come back bit-for-bit and the fit's generator is not touched."""
     start = time.perf_counter()
     saved = copy.deepcopy(problem.avatar.state_dict())
-    by_name = {stage.name: stage for stage in stages}
+    by_kind = {stage.kind: stage for stage in schedule}
     seconds = {}
     try:
         for kind in kinds:
-            stage = by_name[kind.split(" ")[0]]
-            state = FitState.fresh(len(stages), "on" if kind.endswith(" shadows") else "off")
-            run = StageRun(problem, stage, state, torch.Generator().manual_seed(0))
+            state = FitState.fresh(schedule, "on" if kind.shadows else "off")
+            run = StageRun(problem, by_kind[kind.stage], state, torch.Generator().manual_seed(0))
             if not run.has_work:
                 continue
             durations = []
@@ -166,28 +182,19 @@ class TimeLeft:
 
 
 class FitEstimate:
-    """A fit's time: step costs measured before the stages (calibrate; a small fit takes the
-    fallback model), the time left after each step, a trace of it for the report
-    (every TRACE_SECONDS), so that the estimate can be checked against the truth, and, with a
-    budget (settings.budget_seconds), the steps re-planned to fit it (budget.BudgetKeeper)."""
+    """A fit's time: from the step costs of the calibration step (measure_step_costs), the time
+    left after each step and a trace of it for the report (every TRACE_SECONDS), so that the
+    estimate can be checked against the truth. With a `budget` (budget.BudgetKeeper) the
+    schedule in force (state.schedule) is re-planned to fit it, at the start and every
+    REPLAN_STEPS steps."""
 
     TRACE_SECONDS = 10.0
 
-    def __init__(self, problem, state, started):
-        self.problem, self.state = problem, state
-        stages = problem.settings.stages()
-        active = {stage.name: stage.steps > 0 and bool(parameter_groups(problem, stage)) for stage in stages}
-        self.active = lambda stage: active[stage.name]
-        plan = self.plan()
-        budget = problem.settings.budget_seconds
-        if budget is not None or sum(steps for _, steps in plan) >= CALIBRATE_MIN_STEPS:
-            self.costs = calibrate(problem, stages, sorted({kind for kind, _ in plan}))
-        else:
-            self.costs = fallback_costs(problem.settings, len(problem.frames))
-        self.time_left = TimeLeft(self.costs)
-        self.budget = None if budget is None else BudgetKeeper(problem, state, self, started, state.fit_seconds)
-        if self.budget is not None:
-            self.budget.replan(time.perf_counter())
+    def __init__(self, problem, state, costs: StepCosts, active, budget: BudgetKeeper | None = None):
+        self.problem, self.state, self.costs, self.active, self.budget = problem, state, costs, active, budget
+        self.time_left = TimeLeft(costs)
+        if budget is not None:
+            self._replan(time.perf_counter())
         plan = self.plan()
         self.steps_left = int(round(sum(steps for _, steps in plan)))
         self.expected_seconds = self.costs.plan_seconds(plan)
@@ -196,17 +203,21 @@ class FitEstimate:
         self.trace = [[0.0, round(self.expected_seconds, 1)]]
 
     def plan(self):
-        return remaining_plan(self.problem.settings.stages(), self.state, self.problem.settings.shadows, self.active)
+        return remaining_plan(self.state.schedule, self.state, self.problem.settings.shadows, self.active)
 
-    def step(self, kind, run):
-        """(seconds left, steps left) after a step of `kind` (timed from the previous call) in
-        `run`, the StageRun under way (a budget may change its steps)."""
+    def _replan(self, now):
+        self.state.schedule = self.budget.replan(now, self.state, self.plan(), self.time_left,
+                                                 self.costs.after_stages)
+
+    def step(self, kind: StepKind):
+        """(seconds left, steps left) after a step of `kind` (timed from the previous call); a
+        budget may have put a new schedule in force (state.schedule)."""
         now = time.perf_counter()
         measured = self.state.measure_seconds   # observers' time (the anytime curve) is no step's
         self.time_left.step(kind, now - self.last_step - (measured - self.measured_at_last_step))
         self.last_step, self.measured_at_last_step = now, measured
         if self.budget is not None and self.state.step % REPLAN_STEPS == 0:
-            self.budget.replan(now, run)
+            self._replan(now)
         plan = self.plan()
         left = self.time_left.seconds_left(plan)
         fitting = self.fitting_seconds(now)
@@ -223,7 +234,7 @@ class FitEstimate:
         its `seconds_before_outputs` plus the report's output_seconds is the true time it estimated."""
         return {"expected_seconds": round(self.expected_seconds, 1), "calibrated": self.costs.calibrated,
                 "calibration_seconds": round(self.costs.calibration_seconds, 1),
-                "step_seconds": {kind: round(cost, 4) for kind, cost in self.costs.seconds.items()},
+                "step_seconds": {str(kind): round(cost, 4) for kind, cost in self.costs.seconds.items()},
                 "after_stages_seconds": round(self.costs.after_stages, 1),
                 "budget_seconds": self.problem.settings.budget_seconds,
                 "seconds_before_outputs": round(self.fitting_seconds(time.perf_counter()), 1),

@@ -21,11 +21,13 @@ from ..formats.sequence_folder import validate_sequence_folder
 from .albedo_solve import solve_avatar_albedo
 from .avatar import APPEARANCE, SHAPE
 from .checkpoint import CHECKPOINT_FILE, CHECKPOINT_VERSION, Checkpoint, FitState, load_checkpoint, save_checkpoint
-from .estimate import FitEstimate, step_kind
+from .budget import BudgetKeeper
+from .estimate import FitEstimate, active_stages, measure_step_costs
 from .frames import held_out_frames, select_frames
 from .outputs import write_outputs
 from .problem import FitError, FitProblem, build_problem
 from .progress import Progress
+from .schedule import SHADOWS_DECIDED_IN, step_kind
 from .settings import settings_for
 from .stage_run import StageRun
 from .texture_fill import fill_avatar_albedo
@@ -34,10 +36,10 @@ SHADOW_AMBIENT_THRESHOLD = 0.75   # a fitted ambient ratio below this means a do
 KNOWN_APPEARANCE = SHAPE + APPEARANCE   # what a fit with known appearance takes from another fit, frozen
 # settings of what runs after the stages: a resumed fit may change them (they do not touch the checkpoint)
 AFTER_THE_STAGES = ("solve_albedo",)
-# what a budget plans: a budgeted fit resumes with a new budget, or without one on its saved plan
-BUDGET_PLANNED = ("budget_seconds", "steps", "align_steps")
+# a budgeted fit resumes with a new budget, or without one on the schedule it had (FitState.schedule)
+BUDGET = ("budget_seconds",)
 
-__all__ = ["fit", "FitError", "FitObserver", "CHECKPOINT_FILE"]
+__all__ = ["fit", "FitJob", "FitError", "FitObserver", "CHECKPOINT_FILE"]
 
 
 class FitObserver:
@@ -55,27 +57,55 @@ class FitObserver:
         pass
 
 
-def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None, shadows="auto",
-        max_steps=None, hold_out_every=None, known_appearance=None, observers=(), **overrides):
+@dataclasses.dataclass(frozen=True)
+class FitJob:
+    """How a fit runs, beside what it fits (FitSettings): the preset the settings start from,
+    whether it resumes, how it shows progress ("bar", "jsonl", "none"), where it runs, a cap on
+    every stage's steps (a quick look), every N-th frame held out for evaluation (frames.py), and
+    a finished fit whose shape, displacements, textures and light it takes, frozen, fitting only
+    the per-frame poses (HARP-known)."""
+
+    preset: str = "fast"
+    resume: bool = False
+    progress: str = "bar"
+    device: str | None = None
+    max_steps: int | None = None
+    hold_out_every: int | None = None
+    known_appearance: str | Path | None = None
+
+    @classmethod
+    def split(cls, options: dict) -> tuple[dict, dict]:
+        """(the job's options, the settings overrides) of fit()'s keyword options."""
+        fields = {field.name for field in dataclasses.fields(cls)}
+        return {k: v for k, v in options.items() if k in fields}, {k: v for k, v in options.items() if k not in fields}
+
+
+def fit(sequence, out, job: FitJob | None = None, observers=(), **options):
     """Fit an avatar to a sequence folder with an init.npz; writes `out` and returns the report.
-    hold_out_every=N leaves every N-th frame out (frames.py) for held-out evaluation;
-    known_appearance=AVATAR takes shape, displacements, textures and light from that finished
-    fit, frozen, and fits only the per-frame poses (HARP-known); `overrides` replace settings."""
+    `options` are FitJob fields (preset="full", resume=True, ...) and FitSettings overrides
+    (texture_size=512, shadows="off", ...) by name; they replace those of `job`. `observers`
+    (FitObserver) watch the fit."""
     started = time.perf_counter()
     sequence, out = Path(sequence), Path(out)
-    problem, held_out = _set_up(sequence, preset, device, shadows, max_steps, hold_out_every, known_appearance,
-                                overrides)
-    stages = problem.settings.stages()
+    job_options, overrides = FitJob.split(options)
+    job = dataclasses.replace(job or FitJob(), **job_options)
+    problem, held_out = _set_up(sequence, job, overrides)
+    settings = problem.settings
     out.mkdir(parents=True, exist_ok=True)
     saver = _CheckpointSaver(out / CHECKPOINT_FILE, problem)
-    state, generator, optimiser_state = saver.resume() if resume else saver.fresh(len(stages))
-    estimate = FitEstimate(problem, state, started)
-    clock = _FitClock(state)      # after the estimate: measuring the step costs is no stage's time
-    with Progress(progress, estimate.steps_left) as reporter, _interrupt_flag() as interrupted:
-        reporter.log(_opening_line(problem, preset, estimate))
+    state, generator, optimiser_state = saver.resume() if job.resume else saver.fresh()
+    active = active_stages(problem, settings.schedule())
+    costs = measure_step_costs(problem, state, active)     # the calibration step
+    budget = None if settings.budget_seconds is None else \
+        BudgetKeeper(settings.budget_seconds, settings.schedule(), active, started, state.fit_seconds,
+                     state.measure_seconds)
+    estimate = FitEstimate(problem, state, costs, active, budget)
+    clock = _FitClock(state)      # after the calibration: measuring the step costs is no stage's time
+    with Progress(job.progress, estimate.steps_left) as reporter, _interrupt_flag() as interrupted:
+        reporter.log(_opening_line(problem, job.preset, estimate))
         clock.observe(observers, "start", problem)
-        for index in range(state.stage, len(stages)):
-            run = StageRun(problem, problem.settings.stages()[index], state, generator, optimiser_state)
+        for index in range(state.stage, len(state.schedule)):
+            run = StageRun(problem, state.schedule[index], state, generator, optimiser_state)
             optimiser_state = None
             while run.has_work and not run.finished:
                 if interrupted.is_set():
@@ -86,7 +116,8 @@ def fit(sequence, out, preset="fast", resume=False, progress="bar", device=None,
                 kind = step_kind(run.stage, run.shadows())
                 result = run.step()
                 clock.charge()
-                reporter.update(run.stage.name, state.step, result.loss, *estimate.step(kind, run))
+                reporter.update(run.stage.name, state.step, result.loss, *estimate.step(kind))
+                run.stage = state.schedule[index]     # a budget may have re-planned its steps
                 if result.event:
                     reporter.log(result.event)
                 _decide_shadows(problem, run, reporter)
@@ -117,23 +148,25 @@ def _after_the_stages(problem, state, reporter, save):
         save()
 
 
-def _set_up(sequence, preset, device, shadows, max_steps, hold_out_every, known_appearance, overrides):
-    """(FitProblem, held-out frames) of a fit's arguments; bad input is one FitError line."""
+def _set_up(sequence, job: FitJob, overrides):
+    """(FitProblem, held-out frames) of a fit's job and settings overrides; bad input is one
+    FitError line."""
     info = validate_sequence_folder(sequence)
     initial = read_initial_estimate(sequence)
-    settings = settings_for(preset, initial.frame_count, image_size=max(info.width, info.height), shadows=shadows,
-                            **overrides)
-    if max_steps is not None:  # a quick look (and tests): every stage capped
-        settings.steps = tuple(min(s, max_steps) for s in settings.steps)
-        settings.align_steps = min(settings.align_steps, max_steps)
-    held_out = held_out_frames(initial.frame_count, hold_out_every)
+    settings = settings_for(job.preset, initial.frame_count, image_size=max(info.width, info.height), **overrides)
+    if job.max_steps is not None:  # a quick look (and tests): every stage capped
+        most = job.max_steps
+        settings = dataclasses.replace(settings, steps=tuple(min(s, most) for s in settings.steps),
+                                       align_steps=min(settings.align_steps, most))
+    held_out = held_out_frames(initial.frame_count, job.hold_out_every)
+    known_appearance, device = job.known_appearance, job.device
     frames = select_frames(initial.frame_count, settings.max_frames, exclude=held_out)
     shared = {}
     if known_appearance is not None:
         if not (Path(known_appearance) / CHECKPOINT_FILE).is_file():
             raise FitError(f"known appearance: {known_appearance} is not a fit folder (no {CHECKPOINT_FILE})")
         known = load_checkpoint(Path(known_appearance) / CHECKPOINT_FILE, device)
-        if known.state.stage < len(known.settings.stages()):
+        if not known.state.finished:
             raise FitError(f"the fit in {known_appearance} has not finished: resume it first")
         shared = {name: known.avatar[name] for name in KNOWN_APPEARANCE}
         # its light comes with its shadows decision
@@ -174,7 +207,7 @@ def _decide_shadows(problem, run, reporter):
     """Self-shadowing pays off under a dominant light: `auto` decides half-way through the
     joint stage from the fitted ambient ratio."""
     decision = run.state.shadows
-    if decision.decided or run.stage.name != "geometry+appearance" or run.state.step < run.stage.steps // 2:
+    if decision.decided or run.stage.kind is not SHADOWS_DECIDED_IN or run.state.step < run.stage.steps // 2:
         return
     ambient = problem.avatar.ambient.item()
     decision.on, decision.decided, decision.ambient_at_decision = ambient < SHADOW_AMBIENT_THRESHOLD, True, ambient
@@ -188,9 +221,9 @@ class _CheckpointSaver:
     def __init__(self, path, problem):
         self.path, self.problem, self.last_save = Path(path), problem, time.time()
 
-    def fresh(self, stage_count):
+    def fresh(self):
         settings = self.problem.settings
-        return FitState.fresh(stage_count, settings.shadows), torch.Generator().manual_seed(settings.seed), None
+        return FitState.fresh(settings.schedule(), settings.shadows), torch.Generator().manual_seed(settings.seed), None
 
     def resume(self):
         if not self.path.is_file():
@@ -199,12 +232,7 @@ class _CheckpointSaver:
         if saved.version != CHECKPOINT_VERSION:
             raise FitError(f"{self.path} was written by an older harp version (checkpoint {saved.version}): "
                            "fit again without --resume")
-        settings, tolerated = self.problem.settings, AFTER_THE_STAGES
-        if saved.settings.budget_seconds is not None or settings.budget_seconds is not None:
-            tolerated += BUDGET_PLANNED
-            if settings.budget_seconds is None:
-                for name in BUDGET_PLANNED:
-                    setattr(settings, name, getattr(saved.settings, name))
+        settings, tolerated = self.problem.settings, AFTER_THE_STAGES + BUDGET
         changed = sorted(k for k, v in vars(saved.settings).items()
                          if vars(settings).get(k) != v and k not in tolerated)
         if changed:

@@ -97,7 +97,8 @@ def write_outputs(out, problem, state, held_out=(), estimate=None):
         last[entry["stage"]] = entry
     report = {
         "sequence": str(problem.sequence), "frames": clip.frames.tolist(), "preset": settings.preset,
-        "stage_seconds": dict(zip([stage.name for stage in settings.stages()], state.stage_seconds)),
+        "schedule": {stage.name: stage.steps for stage in state.schedule},   # the steps in force (a budget's)
+        "stage_seconds": dict(zip([stage.name for stage in state.schedule], state.stage_seconds)),
         "total_seconds": state.fit_seconds, "measure_seconds": state.measure_seconds,
         "output_seconds": time.time() - start, "final_losses": last, "metrics": scores,
         "shadows": dataclasses.asdict(state.shadows), "events": state.events,

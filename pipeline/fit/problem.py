@@ -23,6 +23,7 @@ from ..handmodel.uv_atlas import uv_mask as atlas_mask
 from ..render.rasterize import project
 from .avatar import Avatar
 from .clip_data import ClipData, load_clip
+from .energy_terms import ENERGY_TERMS, is_on
 from .losses import PHOTOMETRIC_EROSION, eroded_mask
 from .mask_cuts import cut_regions
 from .perceptual import perceptual_term
@@ -57,6 +58,7 @@ class FitProblem:
     mask_cut_frames: int = 0            # frames whose mask is cut across the forearm (mask_cuts.py)
     exposure_note: str = ""             # how the exposure gains were switched on or off
     exposure_measured: tuple | None = None   # measured_exposure(clip) when the gains are on: their prior
+    term_data: dict = dataclasses.field(default_factory=dict)   # {term name: its prepared data} (energy_terms.py)
 
     @property
     def exposure_on(self) -> bool:
@@ -127,10 +129,21 @@ def build_problem(sequence, settings: FitSettings, frames, device=None, shared=N
         perceptual_name, perceptual = "off (weight 0)", None
     else:
         perceptual_name, perceptual = perceptual_term(settings.perceptual_weights, device)
-    return FitProblem(sequence, settings, initial, clip, avatar, topology.edges,
-                      topology.faces[topology.faces[:, 1] >= 0], uv_mask, perceptual, perceptual_name,
-                      keypoints[:, :21].detach(), reference_vertices.detach(), frozen, silhouette_weight,
-                      cut_frames, exposure_note, exposure_measured)
+    problem = FitProblem(sequence=sequence, settings=settings, initial=initial, clip=clip, avatar=avatar,
+                         edges=topology.edges, face_pairs=topology.faces[topology.faces[:, 1] >= 0], uv_mask=uv_mask,
+                         perceptual=perceptual, perceptual_name=perceptual_name,
+                         anchor_keypoints=keypoints[:, :21].detach(), reference_vertices=reference_vertices.detach(),
+                         frozen=frozen, silhouette_weight=silhouette_weight, mask_cut_frames=cut_frames,
+                         exposure_note=exposure_note, exposure_measured=exposure_measured)
+    problem.term_data = prepare_terms(problem)
+    return problem
+
+
+def prepare_terms(problem: FitProblem) -> dict:
+    """{term name: data} of the energy terms that prepare fixed data, are weighted and apply to
+    the problem, made once with the avatar as it starts (energy_terms.EnergyTerm.prepare)."""
+    return {term.name: term.prepare(problem) for term in ENERGY_TERMS.values()
+            if term.prepare is not None and is_on(term, problem.settings.weights, problem)}
 
 
 def _decide_exposure(settings, clip):

@@ -1,36 +1,19 @@
-"""Fit settings: presets, the stage schedule and the energy weights (Table C.1 by default)."""
+"""Fit settings: presets, the planned schedule (schedule.py) and the energy weights (the
+registry's defaults, energy_terms.py)."""
 from __future__ import annotations
 
 import dataclasses
 import math
 
-WEIGHTS = {  # appendix Table C.1
-    "silhouette": 7.0, "keypoint_anchor": 10.0, "displacement": 2.0, "laplacian": 4.0,
-    "normal_consistency": 0.1, "edge_length": 0.2,
-    "photometric": 1.0, "perceptual": 1.0, "texture": 2.0, "normal_map": 0.5,
-    # ours, not in the table: hands move smoothly at video rates (losses.temporal_*)
-    "temporal_pose": 10.0, "temporal_global": 1.0,
-    "displacement_smoothness": 1.0,   # the displacement field's own roughness (losses.py): smooth reposed fingers
-    "exposure": 1.0,                  # per-frame exposure gains: smooth over time, average 1 (when on)
-}
+from .energy_terms import default_weights
+from .schedule import Schedule, StageKind
+
+# the default energy weights, one per registered term (energy_terms.py: Table C.1 and ours)
+WEIGHTS = default_weights()
 
 
 # settings that earlier versions stored; the step costs are now measured (estimate.py)
 RETIRED = ("seconds_per_step", "seconds_per_align_frame")
-
-
-@dataclasses.dataclass(frozen=True)
-class Stage:
-    name: str
-    steps: int
-    geometry: bool          # geometry parameters move, geometry terms count
-    appearance: bool        # appearance parameters move, appearance terms count
-    coarse: bool = False    # on the unsubdivided mesh, no displacements (implies all_frames)
-    all_frames: bool = False  # every frame in each step (else batches drawn from a shuffled epoch)
-
-    @property
-    def full_batch(self):
-        return self.all_frames or self.coarse
 
 
 @dataclasses.dataclass
@@ -59,18 +42,18 @@ class FitSettings:
     #                                phone clip whole (on the 150-frame study clip, `fast` over all frames
     #                                against 60 of them: 4% more time, L1 0.0299 against 0.0333 and joint
     #                                error 2.12 against 3.21 mm: docs/performance.md)
-    weights: dict = dataclasses.field(default_factory=lambda: dict(WEIGHTS))
+    weights: dict = dataclasses.field(default_factory=default_weights)
     perceptual_weights: str | None = None   # local VGG16 file; default: weight-free pyramid
     checkpoint_seconds: float = 120.0
     budget_seconds: float | None = None   # the steps are cut to end within this (budget.py)
     seed: int = 0
 
-    def stages(self):
-        """The alignment (ours: it widens the basin the three stages start from), then the
-        appendix's three stages."""
+    def schedule(self) -> Schedule:
+        """The planned schedule: the alignment (ours: it widens the basin the three stages start
+        from), then the appendix's three stages."""
         geometry, joint, appearance = self.steps
-        return (Stage("align", self.align_steps, True, False, coarse=True), Stage("geometry", geometry, True, False),
-                Stage("geometry+appearance", joint, True, True), Stage("appearance", appearance, False, True))
+        return Schedule.of_steps({StageKind.ALIGN: self.align_steps, StageKind.GEOMETRY: geometry,
+                                  StageKind.JOINT: joint, StageKind.APPEARANCE: appearance})
 
     @classmethod
     def from_dict(cls, values):

@@ -16,7 +16,7 @@ from .avatar import APPEARANCE, PER_FRAME, POSE
 from .checkpoint import FitState
 from .energy import batch_energy
 from .problem import FitProblem
-from .settings import Stage
+from .schedule import StageSpec
 
 ROLLBACK_EVERY = 20       # steps between the snapshots a rollback returns to
 ALIGN_CHUNK_FRAMES = 32   # frames of the unsubdivided mesh rendered at once in a full batch
@@ -30,7 +30,7 @@ class StepResult:
     event: str | None = None   # what went wrong and was undone, if anything
 
 
-def parameter_groups(problem: FitProblem, stage: Stage):
+def parameter_groups(problem: FitProblem, stage: StageSpec):
     """Adam parameter groups of a stage, frozen parameters left out (empty: nothing to fit).
     The alignment moves rotations and translations at their own rates and no displacements."""
     s = problem.settings
@@ -51,10 +51,15 @@ def parameter_groups(problem: FitProblem, stage: Stage):
     return result
 
 
+def stage_has_work(problem: FitProblem, stage: StageSpec) -> bool:
+    """Whether a stage has steps and anything to move (every parameter it moves may be frozen)."""
+    return stage.steps > 0 and bool(parameter_groups(problem, stage))
+
+
 class StageRun:
     """Steps of one stage over a problem; `optimiser_state` resumes a stage stopped midway."""
 
-    def __init__(self, problem: FitProblem, stage: Stage, state: FitState, generator: torch.Generator,
+    def __init__(self, problem: FitProblem, stage: StageSpec, state: FitState, generator: torch.Generator,
                  optimiser_state=None):
         self.problem, self.stage, self.state, self.generator = problem, stage, state, generator
         groups = parameter_groups(problem, stage)

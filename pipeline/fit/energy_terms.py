@@ -1,0 +1,168 @@
+"""The registry of the fit's energy terms: each declares its name, default weight, the stages
+it counts in, what it needs, and the function that computes it on a batch (losses.py holds the
+maths). Adding a term is one entry here plus its function; nothing else names terms.
+
+The default weights are the appendix's Table C.1 where it has the term; the others are ours.
+A term with weight 0 (settings.weights) is not computed and costs nothing. The order of the
+registry is the order terms are computed and summed (and the order the texture regularisers
+draw their random offsets), so it is part of what makes a fit repeat bit for bit.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable
+
+import torch
+
+from ..handmodel.rotations import axis_angle_to_matrix
+from . import losses
+from .schedule import StageKind
+
+# what a term can need from a batch beyond the silhouette render (the energy makes only what is needed)
+SHADED = "shaded"              # the avatar rendered with its textures and light ("rgb")
+
+_GEOMETRY = frozenset({StageKind.ALIGN, StageKind.GEOMETRY, StageKind.JOINT})
+_SURFACE = frozenset({StageKind.GEOMETRY, StageKind.JOINT})        # the subdivided, displaced surface
+_APPEARANCE = frozenset({StageKind.JOINT, StageKind.APPEARANCE})
+
+
+@dataclasses.dataclass(frozen=True)
+class EnergyTerm:
+    """One term of the fit's energy.
+
+    `evaluate(batch)` -> scalar tensor, `batch` an energy.BatchData (the posed avatar, the render,
+    the frames and masks of the batch, the problem). `stages`: the stage kinds it counts in.
+    `needs`: what it reads that costs a render pass (SHADED). `prepare(problem)`: fixed data made
+    once when the problem is built (held in problem.term_data[name]; None: none). `applies(problem)`:
+    whether the term exists for this problem at all (e.g. exposure gains only when switched on)."""
+
+    name: str
+    weight: float
+    stages: frozenset
+    evaluate: Callable[[Any], torch.Tensor]
+    needs: frozenset = frozenset()
+    prepare: Callable[[Any], Any] | None = None
+    applies: Callable[[Any], bool] | None = None
+
+    def weight_in(self, weights: dict) -> float:
+        """Its weight under `weights` (settings.weights; a term missing from them: its default)."""
+        return weights.get(self.name, self.weight)
+
+
+ENERGY_TERMS: dict[str, EnergyTerm] = {}
+
+
+def register(term: EnergyTerm) -> EnergyTerm:
+    """Add `term` to the registry (after the others: it is computed last)."""
+    if term.name in ENERGY_TERMS:
+        raise ValueError(f"an energy term named {term.name!r} is registered already")
+    ENERGY_TERMS[term.name] = term
+    return term
+
+
+def default_weights() -> dict:
+    """{term name: default weight} of every registered term."""
+    return {name: term.weight for name, term in ENERGY_TERMS.items()}
+
+
+def is_on(term: EnergyTerm, weights: dict, problem=None) -> bool:
+    """Whether `term` is weighted under `weights` (a term missing from them takes its default)
+    and, with `problem`, applies to it."""
+    return term.weight_in(weights) != 0.0 and (problem is None or term.applies is None or term.applies(problem))
+
+
+def terms_for(stage: StageKind, weights: dict, problem=None) -> list:
+    """The terms that count in a stage of kind `stage` and are on (is_on), in registry order."""
+    return [term for term in ENERGY_TERMS.values() if stage in term.stages and is_on(term, weights, problem)]
+
+
+def _term(name, weight, stages, needs=(), prepare=None, applies=None):
+    """Decorator: registers the decorated function as the term's `evaluate`."""
+    def add(evaluate):
+        register(EnergyTerm(name, weight, frozenset(stages), evaluate, frozenset(needs), prepare, applies))
+        return evaluate
+    return add
+
+
+# --- geometry (appendix Table C.1; the temporal terms are ours: hands move smoothly at video rates)
+
+@_term("silhouette", 7.0, _GEOMETRY | {StageKind.HELD_OUT})
+def _silhouette(batch):
+    weight = batch.problem.silhouette_weight
+    return losses.silhouette_loss(batch.images["alpha"], batch.masks, None if weight is None else weight[batch.frames])
+
+
+@_term("keypoint_anchor", 10.0, _GEOMETRY | {StageKind.HELD_OUT})
+def _keypoint_anchor(batch):
+    return losses.keypoint_anchor_loss(batch.keypoints[:, :21], batch.problem.anchor_keypoints[batch.frames])
+
+
+@_term("temporal_pose", 10.0, _GEOMETRY)
+def _temporal_pose(batch):
+    # over every frame (no rendering involved): the batch's frames feel their neighbours
+    avatar = batch.problem.avatar
+    return losses.temporal_pose_loss(avatar.pose * avatar.pose_mask, avatar.frame_numbers)
+
+
+@_term("temporal_global", 1.0, _GEOMETRY)
+def _temporal_global(batch):
+    avatar = batch.problem.avatar
+    return losses.temporal_global_loss(axis_angle_to_matrix(avatar.global_orient), avatar.transl, avatar.frame_numbers)
+
+
+@_term("displacement", 2.0, _SURFACE)
+def _displacement(batch):
+    return losses.displacement_loss(batch.displacement_field)
+
+
+@_term("laplacian", 4.0, _SURFACE)
+def _laplacian(batch):
+    return losses.laplacian_loss(batch.vertices, batch.problem.edges)
+
+
+# the displacement field's own roughness: smooth reposed fingers (docs/fidelity.md)
+@_term("displacement_smoothness", 1.0, _SURFACE)
+def _displacement_smoothness(batch):
+    return losses.displacement_smoothness_loss(batch.displacement_field, batch.problem.edges)
+
+
+@_term("normal_consistency", 0.1, _SURFACE)
+def _normal_consistency(batch):
+    return losses.normal_consistency_loss(batch.vertices, batch.problem.avatar.mesh.faces, batch.problem.face_pairs)
+
+
+@_term("edge_length", 0.2, _SURFACE)
+def _edge_length(batch):
+    return losses.edge_length_loss(batch.vertices, batch.problem.reference_vertices[batch.frames], batch.problem.edges)
+
+
+# --- appearance
+
+@_term("photometric", 1.0, _APPEARANCE | {StageKind.HELD_OUT}, needs=(SHADED,))
+def _photometric(batch):
+    return losses.photometric_loss(batch.rendered, batch.target, batch.masks,
+                                   inside=batch.problem.photometric_inside[batch.frames])
+
+
+@_term("perceptual", 1.0, _APPEARANCE | {StageKind.HELD_OUT}, needs=(SHADED,))
+def _perceptual(batch):
+    return batch.problem.perceptual(batch.rendered * batch.masks, batch.target, batch.masks)
+
+
+@_term("texture", 2.0, _APPEARANCE)
+def _texture(batch):
+    return losses.texture_smoothness_loss(batch.problem.avatar.albedo, batch.problem.uv_mask, batch.generator)
+
+
+@_term("normal_map", 0.5, _APPEARANCE)
+def _normal_map(batch):
+    unit = torch.nn.functional.normalize(batch.problem.avatar.normal_map, dim=0)
+    return losses.normal_map_loss(unit, batch.problem.uv_mask, batch.generator)
+
+
+# per-frame exposure gains: smooth over time, average 1, near what the background shows (when on)
+@_term("exposure", 1.0, _APPEARANCE, applies=lambda problem: problem.exposure_on)
+def _exposure(batch):
+    avatar = batch.problem.avatar
+    return losses.exposure_loss(avatar.exposure, avatar.frame_numbers, *batch.problem.exposure_measured)
+

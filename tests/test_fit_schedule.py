@@ -1,0 +1,121 @@
+"""The fit's plan as data (pipeline/fit/schedule.py) and its energy-term registry
+(pipeline/fit/energy_terms.py): schedules are frozen values, and a term added through the
+registry alone is fitted in the stages it names, with the data it prepares."""
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from pipeline.evaluate.exact_clips import write_clip
+from pipeline.fit import fitting
+from pipeline.fit.checkpoint import CHECKPOINT_FILE, FitState, load_checkpoint
+from pipeline.fit.energy import batch_energy
+from pipeline.fit.energy_terms import ENERGY_TERMS, SHADED, EnergyTerm, terms_for
+from pipeline.fit.problem import build_problem
+from pipeline.fit.schedule import Schedule, StageKind, StageSpec
+from pipeline.fit.settings import settings_for
+from pipeline.init import initialise_sequence
+from synth.motions import OPEN
+
+FIT = dict(progress="none", texture_size=64, batch_size=2, resolution=96, shadows="off", device="cpu",
+           solve_albedo=False)
+
+
+def test_a_schedule_is_a_frozen_value_and_changes_make_new_ones():
+    planned = settings_for("fast", 30).schedule()
+    assert [stage.kind for stage in planned] == [StageKind.ALIGN, StageKind.GEOMETRY, StageKind.JOINT,
+                                                 StageKind.APPEARANCE]
+    assert [stage.steps for stage in planned] == [100, 200, 300, 200]
+    cut = planned.with_steps({StageKind.APPEARANCE: 50})
+    capped = planned.capped(120)
+    assert cut.steps()[StageKind.APPEARANCE] == 50 and planned.steps()[StageKind.APPEARANCE] == 200
+    assert [stage.steps for stage in capped] == [100, 120, 120, 120]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        planned[0].steps = 1
+    assert Schedule.from_list(cut.to_list()) == cut      # as a checkpoint stores it
+
+
+def test_each_stage_kind_says_what_moves():
+    assert [kind.geometry for kind in StageKind] == [True, True, True, False, True]
+    assert [kind.appearance for kind in StageKind] == [False, False, True, True, True]
+    assert [kind.coarse for kind in StageKind] == [True, False, False, False, False]
+    assert [str(kind) for kind in StageKind] == ["align", "geometry", "geometry+appearance", "appearance", "held-out"]
+
+
+def test_the_held_out_stage_counts_the_data_terms_and_the_anchor_only():
+    """Held-out frames fit pose and light to what the frames show; the avatar's regularisers and
+    the temporal terms (over frames the held-out ones are not neighbours of) stay out."""
+    weights = settings_for("fast", 30).weights
+    assert [term.name for term in terms_for(StageKind.HELD_OUT, weights)] == [
+        "silhouette", "keypoint_anchor", "photometric", "perceptual"]
+    assert "photometric" not in [term.name for term in terms_for(StageKind.GEOMETRY, weights)]
+    assert "photometric" not in [term.name for term in terms_for(StageKind.JOINT, {**weights, "photometric": 0.0})]
+
+
+@pytest.fixture(scope="module")
+def tiny_clip(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("schedule") / "clip"
+    write_clip(folder, OPEN, frames=4, size=96, turn_degrees=25)
+    initialise_sequence(folder, "gt-noise", log=lambda *a: None)
+    return folder
+
+
+def test_the_shaded_render_is_made_only_when_a_term_needs_it(tiny_clip, monkeypatch):
+    """An appearance stage whose image terms are off renders the silhouette alone."""
+    from pipeline.fit import energy
+
+    settings = settings_for("fast", 4, resolution=96, texture_size=64)
+    weights = {**settings.weights, "photometric": 0.0, "perceptual": 0.0}
+    problem = build_problem(tiny_clip, dataclasses.replace(settings, weights=weights), np.arange(4), "cpu")
+    outputs = []
+    original = energy.render
+    monkeypatch.setattr(energy, "render", lambda *args, **kwargs: outputs.append(kwargs["outputs"]) or
+                        original(*args, **kwargs))
+    frames = torch.arange(2)
+    _, terms = batch_energy(problem, StageSpec(StageKind.APPEARANCE, 1), frames, False, torch.Generator())
+    assert outputs == [("alpha",)] and set(terms) == {"texture", "normal_map"}
+    problem.settings.weights["photometric"] = 1.0
+    _, terms = batch_energy(problem, StageSpec(StageKind.APPEARANCE, 1), frames, False, torch.Generator())
+    assert outputs[-1] == ("alpha", "rgb") and "photometric" in terms
+    assert all(SHADED in ENERGY_TERMS[name].needs for name in ("photometric", "perceptual"))
+
+
+LIGHT_SHIFT = torch.tensor([0.2, 0.0, 0.0])   # metres: where the test's term wants the light
+
+
+def _light_pull(batch):
+    """A term of the test's own: the light pulled towards its prepared target (in cm)."""
+    return ((batch.problem.avatar.light_position - batch.problem.term_data["light_pull"]) / 0.01).square().sum()
+
+
+def test_a_term_added_through_the_registry_alone_is_fitted(tiny_clip, tmp_path, monkeypatch):
+    """One registry entry, no other change: its default weight reaches the settings, its data is
+    prepared once with the problem (the light 20 cm to the side of where it starts), it counts
+    in the stages it names (and no other) and it moves the fit there; a fit without it leaves
+    the light elsewhere."""
+    prepared = []
+
+    def prepare(problem):
+        prepared.append(problem.avatar.light_position.detach() + LIGHT_SHIFT.to(problem.avatar.light_position))
+        return prepared[-1]
+
+    term = EnergyTerm("light_pull", 1.0, frozenset({StageKind.JOINT, StageKind.APPEARANCE}), _light_pull,
+                      prepare=prepare)
+    without = fitting.fit(tiny_clip, tmp_path / "without", max_steps=25, **FIT)
+    monkeypatch.setitem(ENERGY_TERMS, term.name, term)
+    with_term = fitting.fit(tiny_clip, tmp_path / "with", max_steps=25, **FIT)
+    saved = load_checkpoint(tmp_path / "with" / CHECKPOINT_FILE, "cpu")
+    assert saved.settings.weights["light_pull"] == 1.0 and len(prepared) == 1
+    stages_with_term = {entry["stage"] for entry in saved.state.history if "light_pull" in entry}
+    assert stages_with_term == {"geometry+appearance", "appearance"}
+    target = prepared[0].numpy()
+    assert np.linalg.norm(np.asarray(with_term["light_position"]) - target) < 0.02
+    assert np.linalg.norm(np.asarray(without["light_position"]) - target) > 0.1
+
+
+def test_the_schedule_in_force_is_the_states_and_survives_a_checkpoint(tiny_clip, tmp_path):
+    fitting.fit(tiny_clip, tmp_path / "avatar", max_steps=3, **FIT)
+    saved = load_checkpoint(tmp_path / "avatar" / CHECKPOINT_FILE, "cpu")
+    assert saved.state.schedule == saved.settings.schedule() == settings_for("fast", 4).schedule().capped(3)
+    assert saved.state.finished and FitState.from_dict(saved.state.to_dict()) == saved.state
