@@ -12,7 +12,7 @@ import bpy
 
 from . import engine
 from .core import avatar_folder, sequence_folder
-from .export import export_gltf, save_blend
+from .export import ExportError, export_gltf, save_blend
 from .jobs import Job
 from .scene import BindError, bind_avatar, footage_camera
 
@@ -128,20 +128,26 @@ def status_line(running):
     return line
 
 
-def bind(folder, sequence=None, scene=None):
-    """Bind an avatar folder into the scene (scene.bind_avatar); one ActionError line on failure."""
+def bind(folder, sequence=None, scene=None, pack=False):
+    """Bind an avatar folder into the scene (scene.bind_avatar; `pack`: its images travel inside
+    the .blend); one ActionError line on failure."""
     try:
-        return bind_avatar(folder, sequence or None, scene=scene)
+        return bind_avatar(folder, sequence or None, scene=scene, pack=pack)
     except (avatar_folder.AvatarFolderError, BindError, ValueError, OSError) as error:
         raise ActionError(str(error)) from None
 
 
-def export(bound, gltf=None, blend=None):
+def export(bound, gltf=None, blend=None, pack=False):
+    """Write the .glb and the .blend (`pack`: with every image inside it) that are asked for;
+    one ActionError line on failure."""
     written = []
-    if gltf:
-        written.append(export_gltf(bound, gltf))
-    if blend:
-        written.append(save_blend(blend))
+    try:
+        if gltf:
+            written.append(export_gltf(bound, gltf))
+        if blend:
+            written.append(save_blend(blend, pack=pack))
+    except ExportError as error:
+        raise ActionError(str(error)) from None
     return written
 
 

@@ -1,14 +1,19 @@
 """The panel's buttons: thin operators around actions.py. Jobs are polled by a timer while one
-runs (the interface never waits for them); any failure is one line in the status bar."""
+runs (the interface never waits for them); any failure is one line in the status bar (an
+unexpected one with its traceback in the log, the system console) and leaves the scene as it
+was."""
 from __future__ import annotations
 
+import logging
 import math
 
 import bpy
 
 from . import actions
+from .scene import removing_on_failure
 
 POLL_SECONDS = 0.25
+log = logging.getLogger(__name__)
 
 
 def _poll_all():
@@ -30,17 +35,30 @@ def _watch():
 
 
 class _Action(bpy.types.Operator):
-    """Runs `self.act(context, settings)`; an ActionError becomes one reported line."""
+    """Runs `self.act(context, settings)`; any exception becomes one reported line and removes
+    what the button had made."""
 
     def execute(self, context):
         try:
-            message = self.act(context, context.scene.harp)
+            with removing_on_failure():
+                message = self.act(context, context.scene.harp)
         except actions.ActionError as error:
             self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
+        except Exception as error:  # a defect: never a traceback in the interface
+            log.exception("HARP: %s failed", self.bl_label)
+            self.report({"ERROR"}, f"{self.bl_label} failed: {unexpected_line(error)} "
+                                   "(details in the system console)")
             return {"CANCELLED"}
         if message:
             self.report({"INFO"}, message)
         return {"FINISHED"}
+
+
+def unexpected_line(error):
+    """`Type: first line of the message`, for an exception that was not expected."""
+    lines = str(error).strip().splitlines()
+    return f"{type(error).__name__}: {lines[0]}" if lines else type(error).__name__
 
 
 class HARP_OT_import(_Action):
@@ -88,7 +106,8 @@ class HARP_OT_bind(_Action):
 
     def act(self, context, settings):
         bound = actions.bind(bpy.path.abspath(settings.avatar),
-                             bpy.path.abspath(settings.sequence) if settings.sequence else None, context.scene)
+                             bpy.path.abspath(settings.sequence) if settings.sequence else None, context.scene,
+                             pack=settings.pack_on_bind)
         return f"bound {len(bound.frames)} frames into {bound.collection.name}"
 
 
@@ -98,7 +117,7 @@ class HARP_OT_export(_Action):
 
     def act(self, context, settings):
         written = actions.export(actions.last_bound(context.scene), bpy.path.abspath(settings.gltf) or None,
-                                 bpy.path.abspath(settings.blend) or None)
+                                 bpy.path.abspath(settings.blend) or None, pack=settings.pack_on_export)
         return "wrote " + ", ".join(str(path) for path in written)
 
 

@@ -46,12 +46,14 @@ class HARP_PT_panel(bpy.types.Panel):
         box = layout.box()
         box.label(text="3. Bind", icon="OUTLINER_OB_ARMATURE")
         box.prop(settings, "avatar")
+        box.prop(settings, "pack_on_bind")
         box.operator("harp.bind", icon="LINKED")
 
         box = layout.box()
         box.label(text="4. Export", icon="EXPORT")
         box.prop(settings, "gltf")
         box.prop(settings, "blend")
+        box.prop(settings, "pack_on_export")
         box.operator("harp.export", icon="EXPORT")
 
 

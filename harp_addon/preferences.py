@@ -43,7 +43,8 @@ class HARP_OT_check_engine(bpy.types.Operator):
         def collect():
             if thread.is_alive():
                 return 0.5
-            preferences.engine_status = answer["status"].message
+            preferences.engine_status = answer["status"].message if "status" in answer else \
+                "the engine check failed (details in the system console)"
             for window in bpy.context.window_manager.windows:
                 for area in window.screen.areas:
                     area.tag_redraw()

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import bpy
-from bpy.props import EnumProperty, FloatProperty, PointerProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, PointerProperty, StringProperty
 
 PRESETS = [("fast", "Fast", "A few minutes on a laptop CPU"), ("balanced", "Balanced", "Sharper, about three times "
            "as long"), ("full", "Full", "The paper's schedule at 448 px: best, slowest")]
@@ -25,8 +25,13 @@ class HarpSettings(bpy.types.PropertyGroup):
     shadows: EnumProperty(name="Shadows", items=SHADOWS, default="auto")
     init: EnumProperty(name="Start from", items=INITS, default="mediapipe")
     avatar: StringProperty(name="Avatar", subtype="DIR_PATH", description="Avatar folder (written by Fit)")
+    pack_on_bind: BoolProperty(name="Pack images", default=False,
+                               description="Keep the albedo, normal map and footage frame inside the .blend")
     gltf: StringProperty(name="glTF", subtype="FILE_PATH", default="//hand.glb")
     blend: StringProperty(name=".blend", subtype="FILE_PATH", default="//hand.blend")
+    pack_on_export: BoolProperty(name="Pack images", default=True,
+                                 description="The exported .blend carries every image inside it (the open file "
+                                             "is left as it is)")
     # the running job, mirrored by actions.poll
     job_label: StringProperty()
     job_state: StringProperty()

@@ -4,6 +4,10 @@ it (vertex groups from the skin weights, an Armature modifier: plain linear blen
 skin material (albedo, tangent-space normal map), and rotation keys on the root and every pose
 bone at every fitted frame.
 
+Images are loaded by their absolute paths, so a .blend saved anywhere records them relative to
+its own folder, whatever the working directory; with `pack` they travel inside it (the albedo,
+the normal map and, behind the camera, the footage's first frame as a still).
+
 Coordinates: the fit works in the camera frame (OpenCV: x right, y down, z forward). The capture
 space maps it into Blender's world with Z up and the camera looking along +Y
 (CAPTURE_TO_WORLD); the camera inside it is placed by pipeline/formats/camera.py, the one
@@ -66,10 +70,11 @@ def removing_on_failure():
         raise
 
 
-def bind_avatar(folder, sequence=None, scene=None, name=None) -> BoundAvatar:
+def bind_avatar(folder, sequence=None, scene=None, name=None, pack=False) -> BoundAvatar:
     """Bind the avatar folder `folder` into `scene` (default: the current one). `sequence` is
     its footage (a sequence folder: sets the frame rate and range, the resolution and the
-    camera's background); default: the footage the avatar records, when it still exists."""
+    camera's background); default: the footage the avatar records, when it still exists.
+    `pack` packs the images into the .blend."""
     folder = Path(folder)
     files = avatar_folder.read_avatar_folder(folder)
     scene = scene or bpy.context.scene
@@ -79,11 +84,11 @@ def bind_avatar(folder, sequence=None, scene=None, name=None) -> BoundAvatar:
     with removing_on_failure():
         collection, space = _capture(scene, name)
         collection["harp_avatar"] = str(folder.resolve())
-        camera_object = _camera(name, collection, space, K, width, height, footage)
+        camera_object = _camera(name, collection, space, K, width, height, footage, pack)
         rig = build_hand_rig(files.rig, np.zeros(files.rig.shapedirs.shape[-1]), collection=collection, name=name)
         rig.armature.parent = space
         rig.armature.matrix_parent_inverse = Matrix.Identity(4)
-        rig.mesh.data.materials.append(_skin_material(name, files))
+        rig.mesh.data.materials.append(_skin_material(name, files, pack))
         _fitted_light(name, collection, space, files, scene)
         frames = FIRST_FRAME + np.asarray(files.poses.frames, dtype=np.int64)
         _keyframes(rig, files.poses, frames)
@@ -99,12 +104,13 @@ def footage_camera(sequence, scene=None, name=None):
         info = sequence_folder.read_sequence_info(sequence)
     except ValueError as error:
         raise BindError(str(error)) from None
-    name = name or f"HARP footage {Path(sequence).name}"
+    footage = Path(sequence).resolve(), info
+    name = name or f"HARP footage {footage[0].name}"
     with removing_on_failure():
         collection, space = _capture(scene, name)
         camera_object = _camera(name, collection, space, np.asarray(info.K, dtype=np.float64), info.width,
-                                info.height, (Path(sequence), info))
-        _scene_settings(scene, camera_object, (Path(sequence), info), info.width, info.height,
+                                info.height, footage, pack=False)
+        _scene_settings(scene, camera_object, footage, info.width, info.height,
                         np.array([FIRST_FRAME]))
     return camera_object
 
@@ -126,7 +132,7 @@ def _footage(files, sequence):
         if sequence is None or not (Path(sequence) / sequence_folder.SEQUENCE_FILE).is_file():
             return None
     try:
-        return Path(sequence), sequence_folder.read_sequence_info(sequence)
+        return Path(sequence).resolve(), sequence_folder.read_sequence_info(sequence)
     except ValueError as error:
         raise BindError(f"footage: {error}") from None
 
@@ -149,7 +155,7 @@ def _camera_at(files, footage):
     return width, height, K
 
 
-def _camera(name, collection, space, K, width, height, footage):
+def _camera(name, collection, space, K, width, height, footage, pack):
     data = bpy.data.cameras.new(f"{name} camera")
     for key, value in camera.blender_camera_settings(K, width, height).items():
         setattr(data, key, value)
@@ -160,9 +166,7 @@ def _camera(name, collection, space, K, width, height, footage):
     camera_object.matrix_parent_inverse = Matrix.Identity(4)
     camera_object.matrix_basis = Matrix(camera.blender_camera_matrix_world(np.eye(3), np.zeros(3)).tolist())
     if footage is not None and footage[1].frames.get("kind", "images") == "images":
-        first = sequence_folder.frame_path(footage[0], footage[1], 0)
-        image = bpy.data.images.load(str(first), check_existing=False)
-        image.source = "SEQUENCE"
+        image = _image(sequence_folder.frame_path(footage[0], footage[1], 0), "sRGB", pack, source="SEQUENCE")
         background = data.background_images.new()
         background.image = image
         background.image_user.frame_duration = footage[1].frame_count
@@ -173,14 +177,23 @@ def _camera(name, collection, space, K, width, height, footage):
     return camera_object
 
 
-def _skin_material(name, files):
+def _node_tree(block):
+    """The shader nodes of a new material or world: before Blender 5.0 they have none until
+    use_nodes is set (from 5.0 they always have them, and use_nodes is deprecated)."""
+    if block.node_tree is None:
+        block.use_nodes = True
+    return block.node_tree
+
+
+def _skin_material(name, files, pack):
     material = bpy.data.materials.new(f"{name} skin")
-    nodes, links = material.node_tree.nodes, material.node_tree.links
+    tree = _node_tree(material)
+    nodes, links = tree.nodes, tree.links
     shader = next(node for node in nodes if node.bl_idname == "ShaderNodeBsdfPrincipled")
     albedo = nodes.new("ShaderNodeTexImage")
-    albedo.image = _image(files.albedo, "sRGB")
+    albedo.image = _image(files.albedo, "sRGB", pack)
     normal_image = nodes.new("ShaderNodeTexImage")
-    normal_image.image = _image(files.normal_map, "Non-Color")
+    normal_image.image = _image(files.normal_map, "Non-Color", pack)
     normal_map = nodes.new("ShaderNodeNormalMap")
     normal_map.space, normal_map.uv_map = "TANGENT", UV_MAP
     links.new(albedo.outputs["Color"], shader.inputs["Base Color"])
@@ -216,17 +229,28 @@ def _fitted_light(name, collection, space, files, scene):
     sun.matrix_basis = Matrix(matrix.tolist())
     if scene.world is None:
         scene.world = bpy.data.worlds.new(f"{name} ambient")
-        background = next(node for node in scene.world.node_tree.nodes if node.bl_idname == "ShaderNodeBackground")
+        background = next(node for node in _node_tree(scene.world).nodes if node.bl_idname == "ShaderNodeBackground")
         background.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
         background.inputs["Strength"].default_value = ambient
     return sun
 
 
-def _image(path, colour_space):
+def _image(path, colour_space, pack, source="FILE"):
+    """The image at `path`, loaded by its absolute path (a relative one would be read against
+    the working directory but saved against the .blend's folder); packed with `pack`. A packed
+    SEQUENCE is a still of its first frame: Blender reads a sequence's frames from files only."""
+    path = Path(path).resolve()
     image = bpy.data.images.load(str(path), check_existing=False)
     if image.size[0] == 0 or image.size[1] == 0:
         raise BindError(f"Blender cannot read {path}")
     image.colorspace_settings.name = colour_space
+    if pack:
+        try:
+            image.pack()
+        except RuntimeError as error:
+            raise BindError(f"cannot pack {path}: {str(error).strip()}") from None
+    elif image.source != source:
+        image.source = source
     return image
 
 
@@ -245,11 +269,19 @@ def _keyframes(rig, poses, frames):
             rotations.axis_angle_to_quaternion(poses.pose[:, j]))
     for path, values in channels.items():
         for index in range(values.shape[1]):
-            curve = action.fcurve_ensure_for_datablock(armature, path, index=index)
+            curve = _fcurve(action, armature, path, index)
             curve.keyframe_points.add(len(frames))
             curve.keyframe_points.foreach_set("co", np.stack([frames, values[:, index]], 1).ravel().astype(np.float32))
             curve.keyframe_points.foreach_set("interpolation", np.full(len(frames), _LINEAR, dtype=np.int32))
             curve.update()
+
+
+def _fcurve(action, owner, path, index):
+    """A new F-curve of `action` animating `owner` (4.4 brought slotted actions, 5.0 dropped the
+    slot-unaware action.fcurves)."""
+    if hasattr(action, "fcurve_ensure_for_datablock"):
+        return action.fcurve_ensure_for_datablock(owner, path, index=index)
+    return action.fcurves.new(path, index=index)
 
 
 _LINEAR = bpy.types.Keyframe.bl_rna.properties["interpolation"].enum_items["LINEAR"].value

@@ -1,6 +1,7 @@
-"""`harp blend AVATAR --out scene.blend [--gltf hand.glb]`: the Blender add-on's binding without
-its interface, through the bpy module (for pipelines and tests): a new empty scene, the avatar
-bound into it (harp_addon/scene.py), saved, and optionally exported as glTF binary."""
+"""`harp blend AVATAR --out scene.blend [--gltf hand.glb] [--pack]`: the Blender add-on's binding
+without its interface, through the bpy module (for pipelines and tests): a new empty scene, the
+avatar bound into it (harp_addon/scene.py), saved, and optionally exported as glTF binary. The
+.blend finds its images relative to its own folder, or, with `pack`, carries them inside."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -10,7 +11,7 @@ class BlendError(ValueError):
     """The scene cannot be made (one-line message)."""
 
 
-def blend_avatar(avatar, out, gltf=None, sequence=None):
+def blend_avatar(avatar, out, gltf=None, sequence=None, pack=False):
     """Write `out` (.blend) and `gltf` (.glb) of the avatar folder; returns the paths written."""
     try:
         import bpy
@@ -20,7 +21,7 @@ def blend_avatar(avatar, out, gltf=None, sequence=None):
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     try:
-        bound = actions.bind(avatar, sequence)
+        bound = actions.bind(avatar, sequence, pack=pack)
     except actions.ActionError as error:
         raise BlendError(str(error)) from None
     return actions.export(bound, gltf=gltf, blend=Path(out))

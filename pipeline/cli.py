@@ -62,7 +62,7 @@ def _plot(args):
 def _blend(args):
     from .blender_scene import blend_avatar
 
-    for path in blend_avatar(args.avatar, args.out, gltf=args.gltf, sequence=args.sequence):
+    for path in blend_avatar(args.avatar, args.out, gltf=args.gltf, sequence=args.sequence, pack=args.pack):
         print(f"wrote {path}")
 
 
@@ -236,6 +236,9 @@ def build_parser():
     blend.add_argument("--gltf", default=None, help="also export the hand (skin + motion) as this .glb")
     blend.add_argument("--sequence", default=None,
                        help="the footage's sequence folder (default: the one the avatar was fitted to, if present)")
+    blend.add_argument("--pack", action="store_true",
+                       help="keep the albedo, normal map and footage frame inside the .blend (default: files beside "
+                            "it, found relative to its folder)")
     blend.set_defaults(run=_blend)
 
     addon = commands.add_parser("addon", help="the Blender extension")

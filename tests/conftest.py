@@ -3,10 +3,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
+from blender_fixture import prepared
 from pipeline.formats import hand_model_file as fmt
-from pipeline.handmodel.lbs import HandModel, load_model_data
+
+try:
+    import torch
+except ImportError:  # a Blender-only environment (tools/blender_versions.py): only the bpy tests run
+    torch = None
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))  # blender_reference
 
@@ -23,11 +27,27 @@ def model_data():
 
 @pytest.fixture(scope="session")
 def model64():
+    from pipeline.handmodel.lbs import HandModel
+
     return {mode: HandModel.load(mode, dtype=torch.float64) for mode in fmt.MODES}
 
 
-def random_pose(generator, batch, scale, dtype=torch.float64):
-    return scale * torch.randn(batch, 16, 3, generator=generator, dtype=dtype)
+@pytest.fixture(scope="session")
+def prepared_avatar(tmp_path_factory):
+    """A fitted hand + forearm avatar, its clip and the fit's posed surfaces (tests/blender_fixture.py)."""
+    return prepared(tmp_path_factory.mktemp("prepared"))
+
+
+@pytest.fixture
+def empty_scene():
+    """Blender (the bpy module) with a new, empty scene."""
+    bpy = pytest.importorskip("bpy")
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    return bpy.context.scene
+
+
+def random_pose(generator, batch, scale, dtype=None):
+    return scale * torch.randn(batch, 16, 3, generator=generator, dtype=dtype or torch.float64)
 
 
 @pytest.fixture
@@ -39,6 +59,9 @@ def rng():
 def one_torch_thread():
     """One torch thread for a test's small fits: they are as fast on one, and on a shared
     machine two threads fighting other jobs made a 1 s fit take 23 s."""
+    if torch is None:
+        yield
+        return
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     yield
@@ -49,6 +72,9 @@ def one_torch_thread():
 def keep_torch_threads():
     """`harp` commands run in-process (main([...])) set torch's thread count
     (pipeline/threads.py); each test leaves it as it found it."""
+    if torch is None:
+        yield
+        return
     threads = torch.get_num_threads()
     yield
     torch.set_num_threads(threads)

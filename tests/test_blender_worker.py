@@ -1,0 +1,75 @@
+"""The add-on's worker jobs with the real fitting engine (this Python, which has torch): progress,
+cancel, resume and bind; a worker that fails is one line."""
+import sys
+import textwrap
+import time
+
+import pytest
+
+torch = pytest.importorskip("torch")
+bpy = pytest.importorskip("bpy")
+
+from harp_addon import actions, engine, jobs  # noqa: E402
+from pipeline.formats import avatar_folder as av  # noqa: E402
+
+pytestmark = [pytest.mark.blender, pytest.mark.usefixtures("one_torch_thread")]
+
+
+@pytest.fixture(scope="module")
+def exact_clip(tmp_path_factory):
+    from pipeline.evaluate.exact_clips import write_clip
+    from pipeline.init import initialise_sequence
+    from synth.motions import RELAXED
+
+    folder = tmp_path_factory.mktemp("exact") / "clip"
+    write_clip(folder, RELAXED, frames=4, size=96)
+    initialise_sequence(folder, "gt-noise", log=lambda message: None)
+    return folder
+
+
+def test_worker_round_trip_progress_cancel_resume_bind(exact_clip, tmp_path, empty_scene):
+    out = tmp_path / "avatar"
+    running = actions.start_fit("test", exact_clip, out, python=sys.executable, extra=["--max-steps", "60"])
+    progress = []
+    while running.job.active and not progress:
+        progress += [event for event in running.job.poll() if event.kind == "progress"]
+        time.sleep(0.05)    # as Blender's timer would: a busy loop here starves the worker
+    actions.cancel("test")
+    assert running.job.wait(timeout=240) == "cancelled", list(running.job.errors)
+    assert progress and (out / "checkpoint.pt").is_file() and not (out / av.AVATAR_FILE).exists()
+    assert "checkpoint saved" in actions.status_line(running)
+    resumed = actions.start_fit("test", exact_clip, out, python=sys.executable, resume=True,
+                                extra=["--max-steps", "60"])
+    events = []
+    while resumed.job.active:
+        events += [event for event in resumed.job.poll() if event.kind == "progress"]
+        time.sleep(0.05)
+    assert resumed.job.state == "finished", list(resumed.job.errors)
+    done = [event.done for event in events]
+    assert done == sorted(done) and events[-1].done == events[-1].total
+    assert any("resum" in line or "fitting" in line for line in resumed.job.log)
+    bound = actions.bind(out)
+    assert len(bound.frames) == 4
+
+
+def test_worker_problems_are_one_line(exact_clip, tmp_path):
+    with pytest.raises(actions.ActionError, match="no Python at /nowhere/python"):
+        actions.start_fit("bad", exact_clip, tmp_path / "a", python="/nowhere/python")
+    crash = jobs.Job([[sys.executable, "-c", textwrap.dedent("""
+        import json, sys
+        print(json.dumps({"event": "progress", "stage": "geometry", "step": 1, "loss": 0.5, "done": 1, "total": 9,
+                          "seconds_left": 8.0}), flush=True)
+        raise RuntimeError("the worker broke mid-fit")""")]], "fit").start()
+    assert crash.wait(timeout=60) == "failed"
+    assert crash.progress.done == 1 and "RuntimeError: the worker broke mid-fit" in crash.status_line()
+    assert engine.check_engine("/nowhere/python").message == "no Python at /nowhere/python"
+    status = engine.check_engine(sys.executable)
+    assert status.ok and status.torch == torch.__version__ and "cpu" in status.device
+
+
+def test_progress_lines():
+    event = jobs.parse_progress_line('{"event": "progress", "stage": "align", "step": 3, "loss": 0.25, "done": 3, '
+                                     '"total": 30, "seconds_left": 81.0}\n')
+    assert (event.kind, event.stage, event.done, event.total, event.loss) == ("progress", "align", 3, 30, 0.25)
+    assert jobs.parse_progress_line('{"event": "log", "message": "shadows auto"}').message == "shadows auto"
+    assert jobs.parse_progress_line("plain text").kind == "log" and jobs.parse_progress_line("  ") is None
