@@ -489,7 +489,7 @@ def fit_profile(args):
     results = {}
     for preset in args.presets.split(","):
         start = time.perf_counter()
-        problem, _ = fitting._set_up(Path(args.sequence), fitting.FitJob(preset=preset, device="cpu"),
+        problem, _, _ = fitting._set_up(Path(args.sequence), fitting.FitJob(preset=preset, device="cpu"),
                                      {"max_frames": args.max_frames})
         settings = problem.settings
         print(f"\n== fit profile: preset {preset}, {len(problem.frames)} frames at {problem.clip.width}x"

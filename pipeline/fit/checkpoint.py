@@ -21,7 +21,8 @@ from .settings import FitSettings
 CHECKPOINT_FILE = "checkpoint.pt"
 CHECKPOINT_FORMAT = "harp-fit-checkpoint"
 CHECKPOINT_VERSION = 4          # 3: per-frame exposure gains (avatar "exposure", settings.exposure); 4: the
-#                                 schedule in force in the state (a budget no longer rewrites the settings)
+#                                 schedule in force in the state (a budget no longer rewrites the settings),
+#                                 the validation checks and the best one's avatar
 READABLE_VERSIONS = (2, 3, 4)   # a finished fit of version 2 reads as one with its gains off
 
 
@@ -56,6 +57,8 @@ class FitState:
     measure_seconds: float = 0.0        # time observers (the anytime curve) took, not fit time
     texture_fill: dict | None = None    # texture_fill.fill_avatar_albedo's figures, once it has run
     albedo_solve: dict | None = None    # albedo_solve.solve_avatar_albedo's figures, once it has run
+    validation: list = dataclasses.field(default_factory=list)   # validation.Validator's checks, in order
+    best: dict | None = None            # the best check's psnr, stage and step (its avatar: Checkpoint.best_avatar)
 
     @classmethod
     def fresh(cls, schedule: Schedule, shadows="auto"):
@@ -89,6 +92,7 @@ class Checkpoint:
     avatar: dict                        # the Avatar's state_dict
     optimiser: dict | None              # the stage's optimiser state_dict; None at a stage's end
     generator: torch.Tensor             # torch.Generator state
+    best_avatar: dict | None = None     # the Avatar's state_dict at the best validation check (validation.py)
     version: int = CHECKPOINT_VERSION   # as written; an older one can be read but not resumed
 
 
@@ -98,7 +102,7 @@ def save_checkpoint(path, checkpoint: Checkpoint) -> Path:
     torch.save({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION,
                 "settings": vars(checkpoint.settings), "state": checkpoint.state.to_dict(),
                 "avatar": checkpoint.avatar, "optimiser": checkpoint.optimiser,
-                "generator": checkpoint.generator}, temporary)
+                "generator": checkpoint.generator, "best_avatar": checkpoint.best_avatar}, temporary)
     temporary.replace(path)
     return path
 
@@ -124,5 +128,5 @@ def load_checkpoint(path, device=None) -> Checkpoint:
     settings = FitSettings.from_dict(settings)
     if version < 4:      # the schedule in force was the settings' steps (a budget rewrote them)
         state["schedule"] = settings.schedule().to_list()
-    return Checkpoint(settings, FitState.from_dict(state),
-                      avatar, saved["optimiser"], saved["generator"], version)
+    return Checkpoint(settings, FitState.from_dict(state), avatar, saved["optimiser"], saved["generator"],
+                      saved.get("best_avatar"), version)

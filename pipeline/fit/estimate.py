@@ -190,14 +190,16 @@ class FitEstimate:
 
     TRACE_SECONDS = 10.0
 
-    def __init__(self, problem, state, costs: StepCosts, active, budget: BudgetKeeper | None = None):
+    def __init__(self, problem, state, costs: StepCosts, active, budget: BudgetKeeper | None = None,
+                 validator=None):
         self.problem, self.state, self.costs, self.active, self.budget = problem, state, costs, active, budget
+        self.validator = validator     # validation.Validator: its checks are costed beside the steps
         self.time_left = TimeLeft(costs)
         if budget is not None:
             self._replan(time.perf_counter())
         plan = self.plan()
         self.steps_left = int(round(sum(steps for _, steps in plan)))
-        self.expected_seconds = self.costs.plan_seconds(plan)
+        self.expected_seconds = self.costs.plan_seconds(plan) + self._validation_seconds()
         self.start = self.last_step = time.perf_counter()
         self.measured_at_start = self.measured_at_last_step = state.measure_seconds
         self.trace = [[0.0, round(self.expected_seconds, 1)]]
@@ -206,8 +208,15 @@ class FitEstimate:
         return remaining_plan(self.state.schedule, self.state, self.problem.settings.shadows, self.active)
 
     def _replan(self, now):
-        self.state.schedule = self.budget.replan(now, self.state, self.plan(), self.time_left,
-                                                 self.costs.after_stages)
+        reserved = self.costs.after_stages + self._validation_seconds() / self.time_left.speed
+        self.state.schedule = self.budget.replan(now, self.state, self.plan(), self.time_left, reserved)
+
+    def _validation_seconds(self):
+        return 0.0 if self.validator is None else self.validator.seconds_left(self.state, self.costs.seconds)
+
+    def checked(self, seconds):
+        """A validation check took `seconds` since the last step: not part of the next step's time."""
+        self.last_step += seconds
 
     def step(self, kind: StepKind):
         """(seconds left, steps left) after a step of `kind` (timed from the previous call); a
@@ -219,7 +228,7 @@ class FitEstimate:
         if self.budget is not None and self.state.step % REPLAN_STEPS == 0:
             self._replan(now)
         plan = self.plan()
-        left = self.time_left.seconds_left(plan)
+        left = self.time_left.seconds_left(plan) + self._validation_seconds()
         fitting = self.fitting_seconds(now)
         if fitting >= self.trace[-1][0] + self.TRACE_SECONDS:
             self.trace.append([round(fitting, 1), round(left, 1)])

@@ -14,6 +14,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from ..formats.initial_estimate import read_initial_estimate
@@ -23,7 +24,7 @@ from .avatar import APPEARANCE, SHAPE
 from .checkpoint import CHECKPOINT_FILE, CHECKPOINT_VERSION, Checkpoint, FitState, load_checkpoint, save_checkpoint
 from .budget import BudgetKeeper
 from .estimate import FitEstimate, active_stages, measure_step_costs
-from .frames import held_out_frames, select_frames
+from .frames import held_out_frames, select_frames, validation_frames
 from .outputs import write_outputs
 from .problem import FitError, FitProblem, build_problem
 from .progress import Progress
@@ -31,6 +32,7 @@ from .schedule import SHADOWS_DECIDED_IN, step_kind
 from .settings import settings_for
 from .stage_run import StageRun
 from .texture_fill import fill_avatar_albedo
+from .validation import Validator, restore_best
 
 SHADOW_AMBIENT_THRESHOLD = 0.75   # a fitted ambient ratio below this means a dominant light
 KNOWN_APPEARANCE = SHAPE + APPEARANCE   # what a fit with known appearance takes from another fit, frozen
@@ -89,23 +91,26 @@ def fit(sequence, out, job: FitJob | None = None, observers=(), **options):
     sequence, out = Path(sequence), Path(out)
     job_options, overrides = FitJob.split(options)
     job = dataclasses.replace(job or FitJob(), **job_options)
-    problem, held_out = _set_up(sequence, job, overrides)
+    problem, held_out, validation = _set_up(sequence, job, overrides)
     settings = problem.settings
     out.mkdir(parents=True, exist_ok=True)
-    saver = _CheckpointSaver(out / CHECKPOINT_FILE, problem)
+    validator = Validator(problem, validation) if len(validation) else None
+    saver = _CheckpointSaver(out / CHECKPOINT_FILE, problem, validator)
     state, generator, optimiser_state = saver.resume() if job.resume else saver.fresh()
     active = active_stages(problem, settings.schedule())
     costs = measure_step_costs(problem, state, active)     # the calibration step
     budget = None if settings.budget_seconds is None else \
         BudgetKeeper(settings.budget_seconds, settings.schedule(), active, started, state.fit_seconds,
                      state.measure_seconds)
-    estimate = FitEstimate(problem, state, costs, active, budget)
+    estimate = FitEstimate(problem, state, costs, active, budget, validator)
     clock = _FitClock(state)      # after the calibration: measuring the step costs is no stage's time
     with Progress(job.progress, estimate.steps_left) as reporter, _interrupt_flag() as interrupted:
         reporter.log(_opening_line(problem, job.preset, estimate))
         clock.observe(observers, "start", problem)
         for index in range(state.stage, len(state.schedule)):
             run = StageRun(problem, state.schedule[index], state, generator, optimiser_state)
+            if validator is not None and optimiser_state is None:   # a stage from its start
+                validator.new_stage()
             optimiser_state = None
             while run.has_work and not run.finished:
                 if interrupted.is_set():
@@ -121,19 +126,43 @@ def fit(sequence, out, job: FitJob | None = None, observers=(), **options):
                 if result.event:
                     reporter.log(result.event)
                 _decide_shadows(problem, run, reporter)
+                if validator is not None and validator.due(run.stage, state.step):
+                    _validate(validator, state, run, index, estimate, reporter)
                 clock.observe(observers, "step", problem)
                 saver.save_now_and_then(state, run, generator)
             clock.charge()
             state.stage, state.step, state.order = index + 1, 0, []
             saver.save(state, None, generator)
-        _after_the_stages(problem, state, reporter, lambda: saver.save(state, None, generator))
+        _after_the_stages(problem, state, reporter, lambda: saver.save(state, None, generator), validator)
         clock.observe(observers, "end", problem)
-    return write_outputs(out, problem, state, held_out, estimate=estimate.report())
+    return write_outputs(out, problem, state, held_out, estimate=estimate.report(), validation_frames=validation)
 
 
-def _after_the_stages(problem, state, reporter, save):
-    """The albedo solved from the frames, then the unseen texels filled (each once: a resumed
-    fit skips what has run)."""
+def _validate(validator, state, run, index, estimate, reporter):
+    """A validation check after the step just taken; a stage whose checks stopped gaining ends
+    here (a new schedule with its steps so far)."""
+    started = time.perf_counter()
+    point = validator.check(state)
+    estimate.checked(time.perf_counter() - started)
+    reporter.log(f"validation ({len(validator.frames)} frames kept out) at {run.stage.name} step {state.step}: "
+                 f"PSNR {point['psnr_mean']:.2f} dB, IoU {point['silhouette_iou_mean']:.3f}")
+    if validator.stage_stalled() and not run.finished:
+        reporter.log(f"validation: {run.stage.name} gained under the threshold in {validator.stalled_checks} checks "
+                     f"in a row: the stage ends at step {state.step} of {run.stage.steps}")
+        state.schedule = state.schedule.with_steps({run.stage.kind: state.step})
+        run.stage = state.schedule[index]
+
+
+def _after_the_stages(problem, state, reporter, save, validator=None):
+    """The avatar back at its best validation check (when the last scored below it), the albedo
+    solved from the frames, then the unseen texels filled (each once: a resumed fit skips what
+    has run)."""
+    if validator is not None and state.albedo_solve is None and state.texture_fill is None:
+        best = restore_best(validator, state)
+        if best is not None:
+            reporter.log(f"validation: the avatar of {best.stage} step {best.step} ({best.psnr:.2f} dB) is kept, "
+                         f"better than the last check's {state.validation[-1]['psnr_mean']:.2f} dB")
+            save()
     if state.albedo_solve is None and problem.settings.solve_albedo and not problem.known_appearance:
         state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on)
         reporter.log(f"albedo solved from the frames on the final geometry and light: "
@@ -159,8 +188,9 @@ def _set_up(sequence, job: FitJob, overrides):
         settings = dataclasses.replace(settings, steps=tuple(min(s, most) for s in settings.steps),
                                        align_steps=min(settings.align_steps, most))
     held_out = held_out_frames(initial.frame_count, job.hold_out_every)
+    validation = validation_frames(initial.frame_count, settings.validation_frames, exclude=held_out)
     known_appearance, device = job.known_appearance, job.device
-    frames = select_frames(initial.frame_count, settings.max_frames, exclude=held_out)
+    frames = select_frames(initial.frame_count, settings.max_frames, exclude=np.concatenate([held_out, validation]))
     shared = {}
     if known_appearance is not None:
         if not (Path(known_appearance) / CHECKPOINT_FILE).is_file():
@@ -173,7 +203,7 @@ def _set_up(sequence, job: FitJob, overrides):
         settings = dataclasses.replace(settings, shadows="on" if known.state.shadows.on else "off",
                                        displacement_grid=known.settings.displacement_grid)   # its displacements' grid
     problem = build_problem(sequence, settings, frames, device, shared, frozen=tuple(shared))
-    return problem, held_out
+    return problem, held_out, validation
 
 
 def _opening_line(problem, preset, estimate):
@@ -218,8 +248,8 @@ class _CheckpointSaver:
     """Writes the fit's checkpoint (at stage ends, every settings.checkpoint_seconds, on
     Ctrl-C) and reads it back for --resume."""
 
-    def __init__(self, path, problem):
-        self.path, self.problem, self.last_save = Path(path), problem, time.time()
+    def __init__(self, path, problem, validator=None):
+        self.path, self.problem, self.validator, self.last_save = Path(path), problem, validator, time.time()
 
     def fresh(self):
         settings = self.problem.settings
@@ -239,14 +269,17 @@ class _CheckpointSaver:
             raise FitError(f"{self.path} was written with other settings ({', '.join(changed)}): "
                            "resume with the options the fit started with")
         self.problem.avatar.load_state_dict(saved.avatar)
+        if self.validator is not None:
+            self.validator.resume(saved.state, saved.best_avatar)
         generator = torch.Generator()
         generator.set_state(saved.generator.cpu())
         return saved.state, generator, saved.optimiser
 
     def save(self, state, run, generator):
         optimiser = None if run is None else run.optimiser.state_dict()
+        best = None if self.validator is None or self.validator.best is None else self.validator.best.avatar
         save_checkpoint(self.path, Checkpoint(self.problem.settings, state, self.problem.avatar.state_dict(),
-                                              optimiser, generator.get_state()))
+                                              optimiser, generator.get_state(), best))
         self.last_save = time.time()
 
     def save_now_and_then(self, state, run, generator):

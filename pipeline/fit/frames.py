@@ -30,3 +30,28 @@ def select_frames(count, maximum, exclude=()):
     if len(candidates) <= maximum:
         return candidates
     return candidates[np.unique(np.round(np.linspace(0, len(candidates) - 1, maximum)).astype(int))]
+
+
+def validation_frames(count, wanted, per_frames=10, exclude=()):
+    """Sorted sequence frame indices (V,) that a fit keeps out to score itself as it runs
+    (fit/validation.py): `wanted` of them, at most one in `per_frames` of the clip's frames
+    (none for a short clip), at the centres of equal parts of the frames not in `exclude`, so
+    each has fitted neighbours on both sides."""
+    candidates = np.setdiff1d(np.arange(count), np.asarray(exclude, dtype=np.int64))
+    number = min(int(wanted or 0), count // per_frames, len(candidates) // 3)
+    if number <= 0:
+        return np.zeros(0, dtype=np.int64)
+    return candidates[((np.arange(number) + 0.5) * len(candidates) / number).astype(int)]
+
+
+def neighbours(fitted, targets):
+    """(left, right, fraction) for each target frame (T,): the indices into the sorted `fitted`
+    frames (F,) of its nearest fitted frames before and after it, and how far it lies between
+    them (0 at left, 1 at right); beyond the ends both are the nearest end."""
+    fitted, targets = np.asarray(fitted), np.asarray(targets)
+    right = np.clip(np.searchsorted(fitted, targets), 0, len(fitted) - 1)
+    left = np.clip(right - 1, 0, len(fitted) - 1)
+    left = np.where(fitted[right] <= targets, right, left)
+    span = (fitted[right] - fitted[left]).astype(np.float64)
+    fraction = np.where(span > 0, (targets - fitted[left]) / np.where(span > 0, span, 1.0), 0.0)
+    return left, right, np.clip(fraction, 0.0, 1.0)

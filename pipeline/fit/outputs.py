@@ -80,10 +80,11 @@ def metrics_line(scores):
             f"MS-SSIM {scores.get('ms_ssim_mean', float('nan')):.3f}")
 
 
-def write_outputs(out, problem, state, held_out=(), estimate=None):
+def write_outputs(out, problem, state, held_out=(), estimate=None, validation_frames=()):
     """The avatar folder, report.json, fit_grid.png and overlay.mp4 of a finished fit; returns
     the report. `held_out` are the sequence frames left out for evaluation; `estimate` is the
-    fit's time estimate and its trace (estimate.FitEstimate.report)."""
+    fit's time estimate and its trace (estimate.FitEstimate.report); `validation_frames` those
+    kept out to score the fit as it ran (their checks are in `state.validation`)."""
     out = Path(out)
     start = time.time()
     avatar, clip, settings = problem.avatar, problem.clip, problem.settings
@@ -115,6 +116,9 @@ def write_outputs(out, problem, state, held_out=(), estimate=None):
         report["estimate"] = estimate
     if len(held_out):
         report[HELD_OUT_FRAMES] = [int(i) for i in held_out]
+    if len(validation_frames):
+        report["validation"] = {"frames": [int(i) for i in validation_frames], "checks": state.validation,
+                                "best": state.best}
     write_report(out, report)
     return report
 

@@ -38,6 +38,7 @@ class FitSettings:
     solve_albedo: bool = True       # the final albedo solved from the frames (albedo_solve.py)
     shadows: str = "auto"          # auto | on | off
     exposure: str = "auto"         # per-frame exposure gains: auto | on | off (problem.py decides auto)
+    validation_frames: int = 6     # kept out of the fit, scored as it runs: the best state is written (validation.py)
     max_frames: int = 150          # longer clips are subsampled, keeping view coverage; 150: a 5-second
     #                                phone clip whole (on the 150-frame study clip, `fast` over all frames
     #                                against 60 of them: 4% more time, L1 0.0299 against 0.0333 and joint
@@ -61,6 +62,7 @@ class FitSettings:
         (RETIRED ones are dropped: checkpoints from before their retirement still load)."""
         values = {k: v for k, v in values.items() if k not in RETIRED}
         values.setdefault("displacement_grid", "fine")   # saved before the coarse grid existed
+        values.setdefault("validation_frames", 0)        # saved before validation inside the fit
         if "steps" in values:
             values["steps"] = tuple(values["steps"])
         return cls(**values)

@@ -64,3 +64,19 @@ def axis_angle_to_quaternion(axis_angle):
 def matrix_to_axis_angle(matrix):
     """(..., 3, 3) rotations -> (..., 3) axis-angle (radians), exact near 0 and pi."""
     return quaternion_to_axis_angle(matrix_to_quaternion(matrix))
+
+
+def slerp_axis_angle(start, end, t):
+    """(..., 3) axis-angle rotations from `start` to `end` (..., 3) at fraction `t` (broadcast
+    to their leading shape), along the shortest arc between them."""
+    q0, q1 = axis_angle_to_quaternion(start), axis_angle_to_quaternion(end)
+    dot = (q0 * q1).sum(-1, keepdims=True)
+    q1 = np.where(dot < 0, -q1, q1)
+    angle = np.arccos(np.clip(np.abs(dot), -1.0, 1.0))
+    sine = np.sin(angle)
+    t = np.broadcast_to(np.asarray(t, dtype=np.float64), q0.shape[:-1])[..., None]
+    small = sine < 1e-9
+    w0 = np.where(small, 1 - t, np.sin((1 - t) * angle) / np.where(small, 1.0, sine))
+    w1 = np.where(small, t, np.sin(t * angle) / np.where(small, 1.0, sine))
+    q = w0 * q0 + w1 * q1
+    return quaternion_to_axis_angle(q / np.linalg.norm(q, axis=-1, keepdims=True))
