@@ -91,3 +91,17 @@ def test_a_stage_whose_checks_stop_gaining_ends_early(clip, tmp_path, monkeypatc
     assert report["schedule"]["geometry+appearance"] == stopped_at
     assert report["schedule"]["appearance"] == stopped_at
     assert report["schedule"]["geometry"] == 24           # no checks before appearance is fitted
+
+
+def test_the_validation_curve_goes_beside_the_training_curve(clip, tmp_path):
+    from pipeline.evaluate.curve import CurveRecorder
+    from pipeline.evaluate.plot import plot_curves
+    from pipeline.formats.fit_curve import read_curve
+
+    out = tmp_path / "avatar"
+    report = fitting.fit(clip, out, max_steps=12, observers=[CurveRecorder(out)], **FIT)
+    curve = read_curve(out)
+    assert curve["validation"] == report["validation"]["checks"] and len(curve["validation"]) >= 4
+    assert [p["fit_seconds"] for p in curve["validation"]] == sorted(p["fit_seconds"] for p in curve["validation"])
+    picture = plot_curves([out], tmp_path / "curves.png", figures=("psnr_mean", "joint_mm"))
+    assert picture.stat().st_size > 10_000

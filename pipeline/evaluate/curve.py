@@ -8,7 +8,8 @@ report does (fit/outputs.py: silhouette IoU, PSNR, L1, MS-SSIM inside the mask o
 background plate) and, on a synthetic clip, scores the current poses against gt.npz
 (evaluate/poses.py: Procrustes-aligned and camera-frame joint and vertex errors) and the current
 albedo against the truth in the visible UV area (evaluate/albedo.py). The time it takes is
-left out of the fit's time axis and reported as measure_seconds.
+left out of the fit's time axis and reported as measure_seconds. The fit's own validation
+checks (fit/validation.py, on the frames it keeps out) go beside the points as they are.
 
 A resumed fit keeps the points measured before its checkpoint and goes on from there.
 """
@@ -91,4 +92,4 @@ class CurveRecorder(FitObserver):
         self.seconds += time.perf_counter() - started
         write_curve(self.out, {"sequence": str(problem.sequence), "preset": problem.settings.preset,
                                "frames": len(problem.frames), "measure_seconds": self.seconds,
-                               "points": self.points})
+                               "points": self.points, "validation": list(state.validation)})

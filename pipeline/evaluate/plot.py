@@ -3,7 +3,8 @@ from their anytime curves (curve.json), on a log time axis. matplotlib is import
 
 One panel per figure that the fits recorded (formats/fit_curve.FIGURES: image errors always,
 pose and albedo errors on synthetic clips); the first point of each curve (the initial
-estimate, at 0 s) is drawn at the left edge as a hollow marker.
+estimate, at 0 s) is drawn at the left edge as a hollow marker. The fit's validation checks (on
+the frames it kept out) are drawn dashed beside its training curve where they hold the figure.
 """
 from __future__ import annotations
 
@@ -52,6 +53,10 @@ def plot_curves(folders, out, figures=DEFAULT_FIGURES, labels=None, title=None, 
             line, = axis.plot(times, values, marker=".", markersize=4, label=text)
             if points[0]["fit_seconds"] <= 0:
                 axis.plot([left], [values[0]], marker="o", fillstyle="none", color=line.get_color())
+            checks = [p for p in curve.get("validation", []) if p.get(name) is not None]
+            if checks:
+                axis.plot([max(p["fit_seconds"], left) for p in checks], [p[name] for p in checks], marker="x",
+                          markersize=4, linestyle="--", color=line.get_color(), label=f"{text}, validation frames")
         for text, seconds, values in finals:
             if values.get(name) is not None:
                 axis.plot([seconds], [values[name]], marker="*", markersize=10, linestyle="none", label=text)

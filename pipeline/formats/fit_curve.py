@@ -6,7 +6,9 @@ read by `harp plot` and `harp study`.
      "measure_seconds": time spent measuring (not part of any point's fit_seconds),
      "points": [{"fit_seconds", "stage", "step", "silhouette_iou_mean", "silhouette_iou_min",
                  "psnr_mean", "l1_mean", "ms_ssim_mean"?, "joint_mm"?, "joint_camera_mm"?,
-                 "vertex_mm"?, "vertex_camera_mm"?, "albedo_mae"?, "albedo_psnr"?}, ...]}
+                 "vertex_mm"?, "vertex_camera_mm"?, "albedo_mae"?, "albedo_psnr"?}, ...],
+     "validation"?: [{"fit_seconds", "stage", "step", "psnr_mean", "l1_mean", "silhouette_iou_mean",
+                      "refine_steps"}, ...]}   (the fit's checks on the frames it kept out)
 
 fit_seconds is the fit's own time when the figures were taken (setup and measuring excluded);
 it never decreases along the list. Errors against the truth (joints, vertices: Procrustes-
