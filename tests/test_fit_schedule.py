@@ -46,11 +46,23 @@ def test_each_stage_kind_says_what_moves():
 def test_the_held_out_stage_counts_the_data_terms_and_the_anchor_only():
     """Held-out frames fit pose and light to what the frames show; the avatar's regularisers and
     the temporal terms (over frames the held-out ones are not neighbours of) stay out."""
-    weights = settings_for("fast", 30).weights
-    assert [term.name for term in terms_for(StageKind.HELD_OUT, weights)] == [
+    settings = settings_for("fast", 30)
+    assert [term.name for term in terms_for(StageKind.HELD_OUT, settings)] == [
         "silhouette", "keypoint_anchor", "photometric", "perceptual"]
-    assert "photometric" not in [term.name for term in terms_for(StageKind.GEOMETRY, weights)]
-    assert "photometric" not in [term.name for term in terms_for(StageKind.JOINT, {**weights, "photometric": 0.0})]
+    assert "photometric" not in [term.name for term in terms_for(StageKind.GEOMETRY, settings)]
+    no_photometric = dataclasses.replace(settings, weights={**settings.weights, "photometric": 0.0})
+    assert "photometric" not in [term.name for term in terms_for(StageKind.JOINT, no_photometric)]
+
+
+def test_a_terms_weight_can_differ_by_stage():
+    """settings.stage_factors scale a term's weight in the stages named; 0 leaves it out there."""
+    settings = settings_for("fast", 30, stage_factors={"keypoint_anchor": {"geometry": 0.1, "appearance": 0.0},
+                                                       "silhouette": {"align": 0.0}})
+    anchor = ENERGY_TERMS["keypoint_anchor"]
+    assert anchor.weight_in(settings, StageKind.ALIGN) == 10.0
+    assert anchor.weight_in(settings, StageKind.GEOMETRY) == pytest.approx(1.0)
+    assert "silhouette" not in [term.name for term in terms_for(StageKind.ALIGN, settings)]
+    assert "silhouette" in [term.name for term in terms_for(StageKind.GEOMETRY, settings)]
 
 
 @pytest.fixture(scope="module")

@@ -47,10 +47,11 @@ def batch_energy(problem: FitProblem, stage: StageSpec, frames, shadows, generat
     """(total loss, {term: value}) for `frames` (indices into the problem's frames) in `stage`,
     self-shadowing on or off; `generator` draws the texture regularisers' offsets. Terms with
     weight 0 are not computed; the shaded render is made only when a term needs it."""
-    weights = problem.settings.weights
-    terms = terms_for(stage.kind, weights, problem)
+    settings = problem.settings
+    terms = terms_for(stage.kind, settings, problem)
     shaded = stage.appearance and any(SHADED in term.needs for term in terms)
     batch = BatchData(problem, stage, frames, shadows, generator, shaded)
     values = {term.name: term.evaluate(batch) for term in terms}
-    total = sum((term.weight_in(weights) * values[term.name] for term in terms), batch.vertices.new_zeros(()))
+    total = sum((term.weight_in(settings, stage.kind) * values[term.name] for term in terms),
+                batch.vertices.new_zeros(()))
     return total, {name: float(value.detach()) for name, value in values.items()}

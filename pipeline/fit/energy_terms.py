@@ -10,7 +10,7 @@ draw their random offsets), so it is part of what makes a fit repeat bit for bit
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import torch
 
@@ -31,7 +31,9 @@ class EnergyTerm:
     """One term of the fit's energy.
 
     `evaluate(batch)` -> scalar tensor, `batch` an energy.BatchData (the posed avatar, the render,
-    the frames and masks of the batch, the problem). `stages`: the stage kinds it counts in.
+    the frames and masks of the batch, the problem). `stages`: the stage kinds it counts in;
+    `stage_factors`: its weight's factor in some of them (1 where not given; settings.stage_factors
+    replace them).
     `needs`: what it reads that costs a render pass (SHADED). `prepare(problem)`: fixed data made
     once when the problem is built (held in problem.term_data[name]; None: none). `applies(problem)`:
     whether the term exists for this problem at all (e.g. exposure gains only when switched on)."""
@@ -43,10 +45,17 @@ class EnergyTerm:
     needs: frozenset = frozenset()
     prepare: Callable[[Any], Any] | None = None
     applies: Callable[[Any], bool] | None = None
+    stage_factors: Mapping[StageKind, float] = dataclasses.field(default_factory=dict)
 
-    def weight_in(self, weights: dict) -> float:
-        """Its weight under `weights` (settings.weights; a term missing from them: its default)."""
-        return weights.get(self.name, self.weight)
+    def weight_in(self, settings, stage: StageKind | None = None) -> float:
+        """Its weight under `settings` (settings.weights; a term missing from them: its default),
+        in a stage of kind `stage` times its factor there (settings.stage_factors[name][stage
+        name], else its own stage_factors, else 1)."""
+        weight = settings.weights.get(self.name, self.weight)
+        if stage is None:
+            return weight
+        factor = settings.stage_factors.get(self.name, {}).get(stage.value, self.stage_factors.get(stage, 1.0))
+        return weight * factor
 
 
 ENERGY_TERMS: dict[str, EnergyTerm] = {}
@@ -65,21 +74,23 @@ def default_weights() -> dict:
     return {name: term.weight for name, term in ENERGY_TERMS.items()}
 
 
-def is_on(term: EnergyTerm, weights: dict, problem=None) -> bool:
-    """Whether `term` is weighted under `weights` (a term missing from them takes its default)
-    and, with `problem`, applies to it."""
-    return term.weight_in(weights) != 0.0 and (problem is None or term.applies is None or term.applies(problem))
+def is_on(term: EnergyTerm, settings, problem=None, stage: StageKind | None = None) -> bool:
+    """Whether `term` has a weight under `settings` (in a stage of kind `stage`, when given) and,
+    with `problem`, applies to it."""
+    return term.weight_in(settings, stage) != 0.0 and (problem is None or term.applies is None
+                                                       or term.applies(problem))
 
 
-def terms_for(stage: StageKind, weights: dict, problem=None) -> list:
-    """The terms that count in a stage of kind `stage` and are on (is_on), in registry order."""
-    return [term for term in ENERGY_TERMS.values() if stage in term.stages and is_on(term, weights, problem)]
+def terms_for(stage: StageKind, settings, problem=None) -> list:
+    """The terms that count in a stage of kind `stage` and are on there (is_on), in registry order."""
+    return [term for term in ENERGY_TERMS.values() if stage in term.stages and is_on(term, settings, problem, stage)]
 
 
-def _term(name, weight, stages, needs=(), prepare=None, applies=None):
+def _term(name, weight, stages, needs=(), prepare=None, applies=None, stage_factors=None):
     """Decorator: registers the decorated function as the term's `evaluate`."""
     def add(evaluate):
-        register(EnergyTerm(name, weight, frozenset(stages), evaluate, frozenset(needs), prepare, applies))
+        register(EnergyTerm(name, weight, frozenset(stages), evaluate, frozenset(needs), prepare, applies,
+                            dict(stage_factors or {})))
         return evaluate
     return add
 

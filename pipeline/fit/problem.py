@@ -143,7 +143,7 @@ def prepare_terms(problem: FitProblem) -> dict:
     """{term name: data} of the energy terms that prepare fixed data, are weighted and apply to
     the problem, made once with the avatar as it starts (energy_terms.EnergyTerm.prepare)."""
     return {term.name: term.prepare(problem) for term in ENERGY_TERMS.values()
-            if term.prepare is not None and is_on(term, problem.settings.weights, problem)}
+            if term.prepare is not None and is_on(term, problem.settings, problem)}
 
 
 def _decide_exposure(settings, clip):

@@ -44,6 +44,8 @@ class FitSettings:
     #                                against 60 of them: 4% more time, L1 0.0299 against 0.0333 and joint
     #                                error 2.12 against 3.21 mm: docs/performance.md)
     weights: dict = dataclasses.field(default_factory=default_weights)
+    # {term: {stage name: factor}}: a term's weight in a stage, times this (energy_terms.EnergyTerm.stage_factors)
+    stage_factors: dict = dataclasses.field(default_factory=dict)
     perceptual_weights: str | None = None   # local VGG16 file; default: weight-free pyramid
     checkpoint_seconds: float = 120.0
     budget_seconds: float | None = None   # the steps are cut to end within this (budget.py)
@@ -63,6 +65,7 @@ class FitSettings:
         values = {k: v for k, v in values.items() if k not in RETIRED}
         values.setdefault("displacement_grid", "fine")   # saved before the coarse grid existed
         values.setdefault("validation_frames", 0)        # saved before validation inside the fit
+        values.setdefault("stage_factors", {})
         if "steps" in values:
             values["steps"] = tuple(values["steps"])
         return cls(**values)
