@@ -49,7 +49,8 @@ def _fit(args):
     report = fit(args.sequence, args.out, preset=args.preset, resume=args.resume, progress=args.progress,
                  device=args.device, shadows=args.shadows, hold_out_every=args.hold_out_every,
                  known_appearance=args.known_appearance, observers=observers, max_steps=args.max_steps,
-                 exposure=args.exposure, solve_albedo=args.solve_albedo, budget_seconds=args.budget)
+                 exposure=args.exposure, solve_albedo=args.solve_albedo, budget_seconds=args.budget,
+                 validation_frames=args.validation_frames)
     print(f"wrote {args.out} in {report['total_seconds']:.0f} s: {metrics_line(report['metrics'])}")
 
 
@@ -164,6 +165,9 @@ def build_parser():
     fit.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
     fit.add_argument("--hold-out-every", type=int, default=None, metavar="N",
                      help="leave every N-th frame out of the fit, for harp evaluate")
+    fit.add_argument("--validation-frames", type=int, default=None, metavar="N",
+                     help="keep N frames (at most one in ten) out of the fit and score them as it runs: the best "
+                          "state is written, a stage that stops improving them ends (default: 6; 0: off)")
     fit.add_argument("--budget", type=_budget, default=None, metavar="TIME",
                      help="end within this time (e.g. 300, 90s, 10m, 1.5h): the stages' steps are cut where the "
                           "study's curves show they buy least (docs/fit.md)")

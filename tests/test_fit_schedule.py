@@ -15,6 +15,7 @@ from pipeline.fit.energy_terms import ENERGY_TERMS, SHADED, EnergyTerm, terms_fo
 from pipeline.fit.problem import build_problem
 from pipeline.fit.schedule import Schedule, StageKind, StageSpec
 from pipeline.fit.settings import settings_for
+from pipeline.formats.initial_estimate import read_initial_estimate
 from pipeline.init import initialise_sequence
 from synth.motions import OPEN
 
@@ -131,3 +132,17 @@ def test_the_schedule_in_force_is_the_states_and_survives_a_checkpoint(tiny_clip
     saved = load_checkpoint(tmp_path / "avatar" / CHECKPOINT_FILE, "cpu")
     assert saved.state.schedule == saved.settings.schedule() == settings_for("fast", 4).schedule().capped(3)
     assert saved.state.finished and FitState.from_dict(saved.state.to_dict()) == saved.state
+
+
+def test_the_shape_prior_holds_the_shape_near_the_initial_estimates(tiny_clip, tmp_path):
+    """Off by default; weighted, the fitted shape stays nearer the shape the fit started from."""
+    weights = settings_for("fast", 4).weights
+    assert weights["shape_prior"] == 0.0
+    start = torch.as_tensor(read_initial_estimate(tiny_clip).betas)
+    drift = {}
+    for weight in (0.0, 1000.0):
+        out = tmp_path / f"prior{weight:g}"
+        fitting.fit(tiny_clip, out, weights={**weights, "shape_prior": weight}, max_steps=25, lr_betas=0.05, **FIT)
+        betas = load_checkpoint(out / CHECKPOINT_FILE, "cpu").avatar["betas"]
+        drift[weight] = float((betas - start.to(betas.dtype)).abs().max())
+    assert drift[0.0] > 0.05 and drift[1000.0] < 0.3 * drift[0.0]

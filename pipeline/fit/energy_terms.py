@@ -147,6 +147,13 @@ def _edge_length(batch):
     return losses.edge_length_loss(batch.vertices, batch.problem.reference_vertices[batch.frames], batch.problem.edges)
 
 
+# ours, off by default (weight 0) until measured: the shape held near the initial estimate's (from the
+# keypoints' bone lengths) against the drift of long fits (docs/fidelity.md)
+@_term("shape_prior", 0.0, _GEOMETRY, prepare=lambda problem: problem.avatar.betas.detach().clone())
+def _shape_prior(batch):
+    return losses.shape_prior_loss(batch.problem.avatar.betas, batch.problem.term_data["shape_prior"])
+
+
 # --- appearance
 
 @_term("photometric", 1.0, _APPEARANCE | {StageKind.HELD_OUT}, needs=(SHADED,))

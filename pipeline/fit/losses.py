@@ -76,6 +76,12 @@ def edge_length_loss(vertices, reference_vertices, edges):
     return (length - reference).square().mean()
 
 
+def shape_prior_loss(betas, target):
+    """Mean squared distance of the shape parameters (S,) from a target shape (S,), in the shape
+    space's own units (one standard deviation of the population each)."""
+    return (betas - target).square().mean()
+
+
 def eroded_mask(mask, pixels=2):
     """Binary erosion of (B, H, W, 1) masks by a square of radius `pixels` (no gradient)."""
     inverted = 1 - (mask > 0.5).to(mask.dtype).permute(0, 3, 1, 2)
