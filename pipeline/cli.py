@@ -210,8 +210,10 @@ def build_parser():
     evaluate = commands.add_parser("evaluate", help="score a fit: held-out frames; albedo and poses against the truth")
     evaluate.add_argument("fit", help="avatar folder written by harp fit")
     evaluate.add_argument("sequence", help="the sequence folder it was fitted to")
-    evaluate.add_argument("--held-out-steps", type=int, default=100, metavar="N",
-                          help="Adam steps of pose and light on the held-out frames (default 100)")
+    evaluate.add_argument("--held-out-steps", type=int, default=300, metavar="N",
+                          help="at most N Adam steps of pose and light on the held-out frames, from their fitted "
+                               "neighbours' poses until the loss stops falling (default 300); the figure from the "
+                               "keypoints beside it takes 100")
     evaluate.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
     evaluate.add_argument("--novel-poses", action="store_true",
                           help="synthetic clips: the avatar against the true hand (geometry, new poses, texture detail; "

@@ -90,6 +90,32 @@ def test_held_out_evaluation_fits_pose_and_light_only(held_out_fit, tiny_clip, m
     assert seen and all(seen)
 
 
+def test_the_held_out_protocols_start_from_the_neighbours_or_the_keypoints(held_out_fit, tiny_clip):
+    """Frame 2 lies half-way between the fitted frames 1 and 3, frame 5 after the last fitted
+    one (4): the neighbours protocol starts them there; the keypoints protocol from init.npz."""
+    from pipeline.formats.rotations import slerp_axis_angle
+
+    out, _ = held_out_fit
+    saved = load_checkpoint(out / CHECKPOINT_FILE)
+    fitted = {name: saved.avatar[name].numpy() for name in ("global_orient", "transl", "pose")}   # frames 0 1 3 4
+    start = held_out.evaluate_held_out(out, tiny_clip, steps=0, device="cpu").avatar
+    np.testing.assert_allclose(start.transl.detach().numpy(), [(fitted["transl"][1] + fitted["transl"][2]) / 2,
+                                                                fitted["transl"][3]], atol=1e-12)
+    np.testing.assert_allclose(start.pose.detach().numpy()[0], slerp_axis_angle(fitted["pose"][1], fitted["pose"][2], 0.5),
+                               atol=1e-9)
+    np.testing.assert_allclose(start.global_orient.detach().numpy()[1], fitted["global_orient"][3], atol=1e-9)
+    keypoints = held_out.evaluate_held_out(out, tiny_clip, steps=0, device="cpu", protocol="keypoints").avatar
+    np.testing.assert_allclose(keypoints.pose.detach().numpy(), read_initial_estimate(tiny_clip).pose[[2, 5]])
+    with pytest.raises(held_out.EvaluationError, match="protocol"):
+        held_out.evaluate_held_out(out, tiny_clip, steps=0, device="cpu", protocol="truth")
+
+
+def test_the_refinement_stops_when_the_loss_stops_falling():
+    falling = list(np.linspace(1.0, 0.5, 40))
+    assert not held_out.loss_converged(falling) and not held_out.loss_converged([1.0] * 19)
+    assert held_out.loss_converged(falling + [0.5] * 20) and held_out.loss_converged([1.0] * 20)
+
+
 # ------------------------------------------------------------------ albedo
 
 def test_albedo_error_of_known_differences():
@@ -211,7 +237,9 @@ def test_harp_evaluate_writes_evaluation_json(held_out_fit, tiny_clip, capsys):
     out, _ = held_out_fit
     assert main(["evaluate", str(out), str(tiny_clip), "--held-out-steps", "2", "--device", "cpu"]) == 0
     printed = capsys.readouterr().out
-    assert "held-out frames (2, 2 pose+light steps)" in printed and "albedo in the visible UV area" in printed
+    assert "held-out frames (2, from the fitted neighbours' poses, 2 pose+light steps)" in printed
+    assert "held-out frames (2, from the keypoints, 100 pose+light steps)" in printed
+    assert "albedo in the visible UV area" in printed
     assert "pose error, fitted frames" in printed and "pose error, held-out frames" in printed
     result = json.loads((out / evaluation.EVALUATION_FILE).read_text())
     assert set(result) >= {"held_out", "albedo", "poses", "fit_frames"}

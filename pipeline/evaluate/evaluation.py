@@ -17,14 +17,14 @@ from ..formats import sequence_folder as seq
 from ..formats.fit_report import HELD_OUT_FRAMES, read_report
 from .albedo import evaluate_albedo
 from .fidelity import evaluate_fidelity
-from .held_out import evaluate_held_out
+from .held_out import KEYPOINT_PROTOCOL_STEPS, evaluate_held_out
 from .poses import evaluate_poses
 
 EVALUATION_FILE = "evaluation.json"
 HELD_OUT_PICTURE = "held_out_grid.png"
 
 
-def evaluate_fit(fit_folder, sequence, held_out_steps=100, device=None, novel_poses=False, progress="none",
+def evaluate_fit(fit_folder, sequence, held_out_steps=300, device=None, novel_poses=False, progress="none",
                  cycles=False):
     """Every evaluation that applies to this fit and sequence: held-out frames if the report
     lists some (and their picture, HELD_OUT_PICTURE), albedo if the sequence has gt_albedo.png,
@@ -43,10 +43,14 @@ def evaluate_fit(fit_folder, sequence, held_out_steps=100, device=None, novel_po
                              if scores.get("silhouette_iou") else None}}
     held_out = None
     if report.get(HELD_OUT_FRAMES):
-        log(f"held-out frames {report[HELD_OUT_FRAMES]}: fitting pose and light ({held_out_steps} steps)")
+        log(f"held-out frames {report[HELD_OUT_FRAMES]}: fitting pose and light from the fitted neighbours' "
+            f"poses (at most {held_out_steps} steps), then from the keypoints ({KEYPOINT_PROTOCOL_STEPS} steps)")
         held_out = evaluate_held_out(folder, sequence, steps=held_out_steps, device=device, progress=progress,
                                      picture=folder / HELD_OUT_PICTURE)
         result["held_out"] = held_out.to_json()
+        result["held_out_from_keypoints"] = evaluate_held_out(
+            folder, sequence, steps=KEYPOINT_PROTOCOL_STEPS, device=device, progress=progress,
+            protocol="keypoints").to_json()
     if info.albedo:
         log("albedo against the truth")
         result["albedo"] = evaluate_albedo(folder, sequence, device=device)
@@ -72,13 +76,14 @@ def summary_lines(result):
 
     if result["fit_frames"].get("psnr_mean") is not None:
         lines.append(f"fitted frames ({len(result['fit_frames']['frames'])}): {images(result['fit_frames'])}")
-    if "held_out" in result:
-        held = result["held_out"]
-        before = held["metrics_before"]
-        lines.append(f"held-out frames ({len(held['frames'])}, {held['steps']} pose+light steps): "
-                     f"{images(held['metrics'])} (at the initial pose: PSNR {before['psnr_mean']:.2f} dB, "
-                     f"IoU {before['silhouette_iou_mean']:.3f}; loss {held['loss_before']:.4f} -> "
-                     f"{held['loss_after']:.4f})")
+    for key, start in (("held_out", "the fitted neighbours' poses"), ("held_out_from_keypoints", "the keypoints")):
+        if key in result:
+            held = result[key]
+            before = held["metrics_before"]
+            lines.append(f"held-out frames ({len(held['frames'])}, from {start}, {held['steps']} pose+light steps): "
+                         f"{images(held['metrics'])} (at the start: PSNR {before['psnr_mean']:.2f} dB, "
+                         f"IoU {before['silhouette_iou_mean']:.3f}; loss {held['loss_before']:.4f} -> "
+                         f"{held['loss_after']:.4f})")
     if "albedo" in result:
         a = result["albedo"]
         scale = ", ".join(f"{s:.2f}" for s in a["scale"])

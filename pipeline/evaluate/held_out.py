@@ -2,12 +2,19 @@
 
 The fit (fit(..., hold_out_every=N)) leaves them out and lists them in report.json. Here the
 fit problem is built over them (fit/problem.py, the fit's own builder and settings) with shape,
-displacements and textures taken from the fit's checkpoint and frozen, the light taken from it
-and fitted, and the per-frame pose and translation starting from init.npz. One stage of the
-fit's own steps (fit/stage_run.py), a stage of kind HELD_OUT with every held-out frame in every
-step, minimises the energy terms that count in that kind (fit/energy_terms.py: silhouette,
-keypoint anchor, photometric and perceptual) with the fit's weights. Self-shadowing is as the fit decided. Then PSNR and L1 in the
-mask, MS-SSIM and silhouette IoU per frame and mean (fit/outputs.image_scores).
+displacements and textures taken from the fit's checkpoint and frozen (appearance is never
+fitted on them), the light taken from it and fitted. One stage of the fit's own steps
+(fit/stage_run.py), a stage of kind HELD_OUT with every held-out frame in every step, minimises
+the energy terms that count in that kind (fit/energy_terms.py: silhouette, keypoint anchor,
+photometric and perceptual) with the fit's weights. Self-shadowing is as the fit decided. Then
+PSNR and L1 in the mask, MS-SSIM and silhouette IoU per frame and mean (fit/outputs.image_scores).
+
+Two protocols differ in where the poses start and how long they are refined:
+- "neighbours" (the default): from the fitted poses of each frame's temporal neighbours
+  (fit/pose_interpolation.py), refined until the loss stops falling (less than
+  CONVERGED_FRACTION over CONVERGED_WINDOW steps) or a cap: the figure measures the avatar's
+  appearance, not how far a pose search gets from the keypoints.
+- "keypoints" (the protocol before it, kept for continuity): from init.npz, a fixed number of steps.
 """
 from __future__ import annotations
 
@@ -19,6 +26,7 @@ import torch
 
 from ..fit.avatar import LIGHT, SHAPE, TEXTURES, Avatar
 from ..fit.checkpoint import FitState
+from ..fit.pose_interpolation import start_from_neighbours
 from ..fit.outputs import score_renders, write_grid
 from ..fit.progress import Progress
 from ..fit.problem import build_problem, default_device
@@ -31,6 +39,10 @@ from .finished_fit import EvaluationError, load_finished_fit
 
 HELD_OUT_TERMS = tuple(name for name, term in ENERGY_TERMS.items() if StageKind.HELD_OUT in term.stages)
 FROZEN = SHAPE + TEXTURES     # taken from the fit, never changed (the light is taken, then fitted)
+PROTOCOLS = ("neighbours", "keypoints")
+KEYPOINT_PROTOCOL_STEPS = 100   # the keypoints protocol's fixed steps
+CONVERGED_WINDOW = 10           # the neighbours protocol stops when the mean loss of the last window
+CONVERGED_FRACTION = 1e-3       # fell by less than this fraction from the window before it
 
 
 @dataclasses.dataclass
@@ -44,20 +56,27 @@ class HeldOutResult:
     events: list
     shadows: bool
     avatar: Avatar            # its per-frame parameters are the held-out frames'
+    protocol: str = "neighbours"
+    converged: bool = False   # the neighbours protocol stopped on its own, before its cap
 
     def to_json(self):
-        return {"frames": self.frames.tolist(), "steps": len(self.history), "terms": list(HELD_OUT_TERMS),
+        return {"frames": self.frames.tolist(), "protocol": self.protocol, "steps": len(self.history),
+                "converged": self.converged, "terms": list(HELD_OUT_TERMS),
                 "loss_before": self.loss_before, "loss_after": self.loss_after,
                 "loss_history": [entry["loss"] for entry in self.history], "shadows": self.shadows,
                 "events": self.events, "metrics": self.metrics, "metrics_before": self.metrics_before}
 
 
-def evaluate_held_out(fit_folder, sequence, frames=None, steps=100, device=None, progress="none",
-                      picture=None) -> HeldOutResult:
+def evaluate_held_out(fit_folder, sequence, frames=None, steps=300, device=None, progress="none",
+                      picture=None, protocol="neighbours") -> HeldOutResult:
     """Fit pose, translation and light to frames the fit left out (default: the report's
-    held-out frames), appearance and shape frozen, in `steps` steps; score them before and after.
-    `progress`: "bar", "jsonl" or "none" (fit/progress.py); `picture`: a PNG path for the held-out
-    frames as the fit's grid shows its own (input, render, difference)."""
+    held-out frames), appearance and shape frozen; score them before and after. `protocol`
+    (PROTOCOLS): "neighbours" starts from the fitted neighbours' poses and refines until the loss
+    stops falling, at most `steps` steps; "keypoints" starts from init.npz and takes exactly
+    `steps`. `progress`: "bar", "jsonl" or "none" (fit/progress.py); `picture`: a PNG path for
+    the held-out frames as the fit's grid shows its own (input, render, difference)."""
+    if protocol not in PROTOCOLS:
+        raise EvaluationError(f"held-out protocol {protocol!r}: choose one of {', '.join(PROTOCOLS)}")
     device = default_device(device)
     saved, report = load_finished_fit(fit_folder, device)
     frames = np.asarray(report.get(HELD_OUT_FRAMES, []) if frames is None else frames, dtype=np.int64)
@@ -71,6 +90,8 @@ def evaluate_held_out(fit_folder, sequence, frames=None, steps=100, device=None,
     settings = saved.settings
     problem = build_problem(Path(sequence), settings, frames, device,
                             shared={name: saved.avatar[name] for name in FROZEN + LIGHT}, frozen=FROZEN)
+    if protocol == "neighbours":
+        start_from_neighbours(problem.avatar, saved.avatar, report["frames"], frames)
     shadows = bool(saved.state.shadows.on)
     schedule = Schedule((StageSpec(StageKind.HELD_OUT, steps),))
     state = FitState.fresh(schedule, "on" if shadows else "off")
@@ -83,12 +104,23 @@ def evaluate_held_out(fit_folder, sequence, frames=None, steps=100, device=None,
         return loss, {**scores, "silhouette_iou_mean": float(np.mean(scores["silhouette_iou"]))}, rgb
 
     loss_before, metrics_before, _ = loss_and_scores()
+    converged = False
     with Progress(progress, steps) as bar:
-        while run.has_work and not run.finished:
+        while run.has_work and not run.finished and not converged:
             run.step()
             bar.update("held-out frames", len(state.history), state.history[-1]["loss"] if state.history else float("nan"))
+            converged = protocol == "neighbours" and loss_converged([entry["loss"] for entry in state.history])
     loss_after, metrics, rgb = loss_and_scores()
     if picture is not None:
         write_grid(picture, problem.clip, rgb)
     return HeldOutResult(frames, metrics, metrics_before, loss_before, loss_after, state.history, state.events,
-                         shadows, problem.avatar)
+                         shadows, problem.avatar, protocol, converged)
+
+
+def loss_converged(losses, window=CONVERGED_WINDOW, fraction=CONVERGED_FRACTION) -> bool:
+    """Whether the mean of the last `window` losses fell by less than `fraction` of the mean of
+    the window before it (not yet two windows: no)."""
+    if len(losses) < 2 * window:
+        return False
+    before, last = np.mean(losses[-2 * window:-window]), np.mean(losses[-window:])
+    return before - last < fraction * abs(before)

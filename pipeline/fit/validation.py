@@ -24,11 +24,10 @@ import time
 import numpy as np
 import torch
 
-from ..formats.rotations import slerp_axis_angle
 from .avatar import APPEARANCE, SHAPE
 from .checkpoint import FitState
-from .frames import neighbours
 from .outputs import score_renders
+from .pose_interpolation import ROTATIONS, start_from_neighbours
 from .problem import FitProblem, build_problem
 from .schedule import Schedule, StageKind, StageSpec, StepKind
 from .stage_run import StageRun
@@ -134,14 +133,8 @@ class Validator:
         for name in FROZEN:
             if name != "exposure":
                 getattr(avatar, name).copy_(getattr(fitted, name))
-        left, right, fraction = neighbours(self.fit.frames, self.frames)
-        for name in ("global_orient", "pose"):
-            values = getattr(fitted, name).detach().cpu().double().numpy()
-            blended = slerp_axis_angle(values[left], values[right], fraction[:, None] if values.ndim == 3 else fraction)
-            getattr(avatar, name).copy_(torch.as_tensor(blended))
-        transl = fitted.transl.detach()
-        weight = torch.as_tensor(fraction, dtype=transl.dtype, device=transl.device)[:, None]
-        avatar.transl.copy_(transl[left] * (1 - weight) + transl[right] * weight)
+        start_from_neighbours(avatar, {name: getattr(fitted, name) for name in ROTATIONS + ("transl",)},
+                              self.fit.frames, self.frames)
 
     def score(self, shadows) -> dict:
         """{psnr_mean, l1_mean, silhouette_iou_mean, refine_steps} of the validation frames after
