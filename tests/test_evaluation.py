@@ -113,7 +113,7 @@ def test_the_held_out_protocols_start_from_the_neighbours_or_the_keypoints(held_
 def test_the_refinement_stops_when_the_loss_stops_falling():
     falling = list(np.linspace(1.0, 0.5, 40))
     assert not held_out.loss_converged(falling) and not held_out.loss_converged([1.0] * 19)
-    assert held_out.loss_converged(falling + [0.5] * 20) and held_out.loss_converged([1.0] * 20)
+    assert held_out.loss_converged(falling + [0.5] * 20) is True and held_out.loss_converged([1.0] * 20)
 
 
 # ------------------------------------------------------------------ albedo

@@ -123,4 +123,4 @@ def loss_converged(losses, window=CONVERGED_WINDOW, fraction=CONVERGED_FRACTION)
     if len(losses) < 2 * window:
         return False
     before, last = np.mean(losses[-2 * window:-window]), np.mean(losses[-window:])
-    return before - last < fraction * abs(before)
+    return bool(before - last < fraction * abs(before))
