@@ -4,8 +4,10 @@ from __future__ import annotations
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, PointerProperty, StringProperty
 
-PRESETS = [("fast", "Fast", "A few minutes on a laptop CPU"), ("balanced", "Balanced", "Sharper, about three times "
-           "as long"), ("full", "Full", "The paper's schedule at 448 px: best, slowest")]
+# as pipeline/fit/settings.PRESET_NOTES measures them (the add-on cannot import the fitting engine)
+PRESETS = [("fast", "Fast", "About 6 min for a 150-frame clip on one CPU core"),
+           ("balanced", "Balanced", "About 3x as long as Fast; not yet measured better"),
+           ("full", "Full", "The paper's schedule at 448 px, about 50 min for 150 frames; level with Fast there")]
 SHADOWS = [("auto", "Auto", "Decided from the fitted light: on under a dominant light"),
            ("on", "On", "Self-shadowing always"), ("off", "Off", "No self-shadowing (soft, even light)")]
 SIDES = [("auto", "Auto", "Tell from the footage (MediaPipe)"), ("right", "Right", ""), ("left", "Left", "")]

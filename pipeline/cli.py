@@ -130,8 +130,11 @@ def _demo(args):
     run_demo(args.out, progress=args.progress)
 
 
-PRESET_HELP = ("fast (default): a few minutes on a laptop CPU; balanced: sharper, about three times as long; "
-               "full: the paper's schedule at 448 px, best and slowest")
+def _preset_help():
+    from .fit.settings import PRESET_NOTES
+
+    return "; ".join(f"{name}{' (default)' if name == 'fast' else ''}: {note}" for name, note in PRESET_NOTES.items()) \
+        + " (docs/performance.md)"
 PROGRESS_HELP = "bar (default): a progress bar; jsonl: JSON lines (for the Blender add-on); none"
 THREADS_HELP = ("CPU threads (default: half the cores, waiting passively: a fit that shares the machine with "
                 "Blender or another fit stays fast)")
@@ -150,7 +153,7 @@ def build_parser():
     fit = commands.add_parser("fit", help="fit an avatar to a sequence folder that has an init.npz")
     fit.add_argument("sequence", help="sequence folder")
     fit.add_argument("--out", required=True, help="avatar folder to write")
-    fit.add_argument("--preset", choices=("fast", "balanced", "full"), default="fast", help=PRESET_HELP)
+    fit.add_argument("--preset", choices=("fast", "balanced", "full"), default="fast", help=_preset_help())
     fit.add_argument("--shadows", choices=("auto", "on", "off"), default="auto",
                      help="self-shadowing: auto (default) decides from the fitted light, on under a dominant light")
     fit.add_argument("--solve-albedo", action=argparse.BooleanOptionalAction, default=None,
