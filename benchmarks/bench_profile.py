@@ -489,8 +489,8 @@ def fit_profile(args):
     results = {}
     for preset in args.presets.split(","):
         start = time.perf_counter()
-        problem, _, _ = fitting._set_up(Path(args.sequence), fitting.FitJob(preset=preset, device="cpu"),
-                                     {"max_frames": args.max_frames})
+        problem = fitting._set_up(Path(args.sequence), fitting.FitJob(preset=preset, device="cpu"),
+                                  {"max_frames": args.max_frames}).problem
         settings = problem.settings
         print(f"\n== fit profile: preset {preset}, {len(problem.frames)} frames at {problem.clip.width}x"
               f"{problem.clip.height}, batches of {settings.batch_size} (alignment: every frame, unsubdivided "

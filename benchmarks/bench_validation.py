@@ -35,7 +35,8 @@ def main():
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     job = fitting.FitJob(device="cpu")
-    problem, _, frames = fitting._set_up(args.sequence, job, {"validation_frames": args.validation_frames})
+    setup = fitting._set_up(args.sequence, job, {"validation_frames": args.validation_frames})
+    problem, frames = setup.problem, setup.validation
     if not len(frames):
         sys.exit(f"{args.sequence}: too few frames for {args.validation_frames} validation frames")
     validator = Validator(problem, frames)

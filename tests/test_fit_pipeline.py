@@ -54,10 +54,10 @@ def test_fit_writes_a_complete_avatar(tiny_clip, tmp_path):
 def test_the_texture_is_no_finer_than_the_clips_pixels(tiny_clip):
     """A preset's texture shrinks to what the clip's working images can fill (the 96 px clip:
     128 texels, not `full`'s 512); a texture size the user gives is kept."""
-    problem, _, _ = fitting._set_up(tiny_clip, fitting.FitJob("full", device="cpu", max_steps=1), {"shadows": "off"})
+    problem = fitting._set_up(tiny_clip, fitting.FitJob("full", device="cpu", max_steps=1), {"shadows": "off"}).problem
     assert problem.settings.texture_size == 128 and problem.avatar.albedo.shape[-1] == 128
-    problem, _, _ = fitting._set_up(tiny_clip, fitting.FitJob("full", device="cpu", max_steps=1),
-                                  {"shadows": "off", "texture_size": 512})
+    problem = fitting._set_up(tiny_clip, fitting.FitJob("full", device="cpu", max_steps=1),
+                              {"shadows": "off", "texture_size": 512}).problem
     assert problem.settings.texture_size == 512 and problem.avatar.albedo.shape[-1] == 512
 
 

@@ -71,6 +71,7 @@ class FitJob:
     resume: bool = False
     progress: str = "bar"
     device: str | None = None
+    workers: int = 1              # processes that share each batch's frames (batch_workers.py; CPU only)
     max_steps: int | None = None
     hold_out_every: int | None = None
     known_appearance: str | Path | None = None
@@ -91,7 +92,25 @@ def fit(sequence, out, job: FitJob | None = None, observers=(), **options):
     sequence, out = Path(sequence), Path(out)
     job_options, overrides = FitJob.split(options)
     job = dataclasses.replace(job or FitJob(), **job_options)
-    problem, held_out, validation = _set_up(sequence, job, overrides)
+    setup = _set_up(sequence, job, overrides)
+    with _batch_workers(setup.problem, setup.recipe, job.workers):
+        return _run(setup, job, out, observers, started)
+
+
+@dataclasses.dataclass
+class FitSetup:
+    """A fit's problem, the frames it leaves out (held out for evaluation, kept out for its own
+    validation) and the arguments of problem.build_problem that made it (for batch workers)."""
+
+    problem: FitProblem
+    held_out: np.ndarray
+    validation: np.ndarray
+    recipe: dict
+
+
+def _run(setup: FitSetup, job, out, observers, started):
+    """The stage loop of fit() over a problem set up."""
+    problem, held_out, validation = setup.problem, setup.held_out, setup.validation
     settings = problem.settings
     out.mkdir(parents=True, exist_ok=True)
     validator = Validator(problem, validation) if len(validation) else None
@@ -177,9 +196,8 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
         save()
 
 
-def _set_up(sequence, job: FitJob, overrides):
-    """(FitProblem, held-out frames) of a fit's job and settings overrides; bad input is one
-    FitError line."""
+def _set_up(sequence, job: FitJob, overrides) -> FitSetup:
+    """The FitSetup of a fit's job and settings overrides; bad input is one FitError line."""
     info = validate_sequence_folder(sequence)
     initial = read_initial_estimate(sequence)
     settings = settings_for(job.preset, initial.frame_count, image_size=max(info.width, info.height), **overrides)
@@ -202,8 +220,9 @@ def _set_up(sequence, job: FitJob, overrides):
         # its light comes with its shadows decision
         settings = dataclasses.replace(settings, shadows="on" if known.state.shadows.on else "off",
                                        displacement_grid=known.settings.displacement_grid)   # its displacements' grid
-    problem = build_problem(sequence, settings, frames, device, shared, frozen=tuple(shared))
-    return problem, held_out, validation
+    recipe = dict(sequence=sequence, settings=settings, frames=frames, device=device, shared=shared,
+                  frozen=tuple(shared))
+    return FitSetup(build_problem(**recipe), held_out, validation, recipe)
 
 
 def _opening_line(problem, preset, estimate):
@@ -314,6 +333,23 @@ class _FitClock:
             for observer in observers:
                 getattr(observer, event)(problem, self.state)
             self.state.measure_seconds += self._lap()
+
+
+@contextlib.contextmanager
+def _batch_workers(problem, recipe, workers):
+    """`workers` - 1 batch worker processes over the problem for the block (batch_workers.py;
+    on the CPU only: a GPU takes a batch whole)."""
+    if workers <= 1 or problem.device.type != "cpu":
+        yield
+        return
+    from .batch_workers import BatchWorkers
+
+    problem.workers = BatchWorkers(problem, {**recipe, "settings": problem.settings}, workers - 1)
+    try:
+        yield
+    finally:
+        problem.workers.close()
+        problem.workers = None
 
 
 @contextlib.contextmanager

@@ -59,6 +59,7 @@ class FitProblem:
     exposure_note: str = ""             # how the exposure gains were switched on or off
     exposure_measured: tuple | None = None   # measured_exposure(clip) when the gains are on: their prior
     term_data: dict = dataclasses.field(default_factory=dict)   # {term name: its prepared data} (energy_terms.py)
+    workers: object = None              # batch_workers.BatchWorkers: other processes taking parts of each batch
 
     @property
     def exposure_on(self) -> bool:

@@ -51,6 +51,26 @@ def parameter_groups(problem: FitProblem, stage: StageSpec):
     return result
 
 
+def chunked_energy(problem, stage: StageSpec, frames, chunk_size, batch_size, shadows, generator, backward=True):
+    """(loss, terms) of `frames`, part of a batch of `batch_size` frames, rendered in chunks of
+    `chunk_size` whose energies are weighted by their share of the batch; each chunk's gradient
+    is added to the parameters' (a non-finite chunk adds none)."""
+    loss, terms = 0.0, {}
+    for chunk in frames.split(chunk_size):
+        share = len(chunk) / batch_size
+        part, part_terms = batch_energy(problem, stage, chunk, shadows, generator)
+        if backward and torch.isfinite(part):
+            (part * share).backward()
+        loss = loss + float(part.detach()) * share
+        terms = {name: terms.get(name, 0.0) + value * share for name, value in part_terms.items()}
+    return loss, terms
+
+
+def split_batch(batch: torch.Tensor, parts: int) -> list:
+    """`batch` in at most `parts` contiguous parts of near-equal size (no empty part)."""
+    return [part for part in torch.tensor_split(batch, min(parts, len(batch))) if len(part)]
+
+
 def stage_has_work(problem: FitProblem, stage: StageSpec) -> bool:
     """Whether a stage has steps and anything to move (every parameter it moves may be frozen)."""
     return stage.steps > 0 and bool(parameter_groups(problem, stage))
@@ -93,16 +113,22 @@ class StageRun:
         return torch.tensor(batch, device=device)
 
     def energy(self, batch, backward=True):
-        """(loss, terms) over `batch`, rendered in chunks whose gradients add up."""
+        """(loss, terms) over `batch`, rendered in chunks whose gradients add up; with batch
+        workers (problem.workers) each takes a part of the batch."""
         chunk_size = ALIGN_CHUNK_FRAMES if self.stage.coarse else self.problem.settings.batch_size
-        loss, terms = 0.0, {}
-        for chunk in batch.split(chunk_size):
-            share = len(chunk) / len(batch)
-            part, part_terms = batch_energy(self.problem, self.stage, chunk, self.shadows(), self.generator)
-            if backward and torch.isfinite(part):
-                (part * share).backward()
-            loss = loss + float(part.detach()) * share
-            terms = {name: terms.get(name, 0.0) + value * share for name, value in part_terms.items()}
+        workers = self.problem.workers if backward else None
+        parts = [batch] if workers is None else split_batch(batch, 1 + workers.count)
+        asked = []
+        for connection, part in zip([] if workers is None else workers.connections, parts[1:]):
+            seed = int(torch.randint(0, 2 ** 62, (1,), generator=self.generator))
+            workers.send(connection, self.stage, part, chunk_size, len(batch), self.shadows(), seed)
+            asked.append(connection)
+        loss, terms = chunked_energy(self.problem, self.stage, parts[0], chunk_size, len(batch), self.shadows(),
+                                     self.generator, backward)
+        for connection in asked:
+            part_loss, part_terms = workers.collect(connection)
+            loss += part_loss
+            terms = {name: terms.get(name, 0.0) + part_terms.get(name, 0.0) for name in terms.keys() | part_terms}
         return loss, terms
 
     def step(self) -> StepResult:
