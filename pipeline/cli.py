@@ -170,8 +170,8 @@ def build_parser():
                      help="leave every N-th frame out of the fit, for harp evaluate")
     fit.add_argument("--validation-frames", type=int, default=None, metavar="N",
                      help="keep N frames (at most one in ten) out of the fit and score them as it runs: the best "
-                          "state is written, a stage that stops improving them ends (default: 6 for balanced and "
-                          "full, 0 (off) for fast)")
+                          "state is written, a stage that stops improving them ends (default 0: off; measured in "
+                          "docs/fit.md)")
     fit.add_argument("--budget", type=_budget, default=None, metavar="TIME",
                      help="end within this time (e.g. 300, 90s, 10m, 1.5h): the stages' steps are cut where the "
                           "study's curves show they buy least (docs/fit.md)")

@@ -38,9 +38,10 @@ class FitSettings:
     solve_albedo: bool = True       # the final albedo solved from the frames (albedo_solve.py)
     shadows: str = "auto"          # auto | on | off
     exposure: str = "auto"         # per-frame exposure gains: auto | on | off (problem.py decides auto)
-    # frames kept out of the fit and scored as it runs: the best state is written (validation.py). Off for `fast`:
-    # on the demo clip (3 seeds) it left held-out PSNR level (27.76 dB both) and joints 0.11 mm worse for 10% more
-    # time, as fast's validation curve only rises; on for the long schedules, whose shape drifts (docs/fit.md)
+    # frames kept out of the fit and scored as it runs: the best state is written (validation.py). Off until it
+    # is shown to help: with `fast` on the demo clip (3 seeds) it left held-out PSNR level (27.76 dB both), joints
+    # 0.11 mm worse, 10% more time; on the sun clip it went back to an earlier state whose surface was 36% worse
+    # (docs/fit.md). Not measured on balanced and full.
     validation_frames: int = 0
     max_frames: int = 150          # longer clips are subsampled, keeping view coverage; 150: a 5-second
     #                                phone clip whole (on the 150-frame study clip, `fast` over all frames
@@ -76,11 +77,10 @@ class FitSettings:
 
 PRESETS = {
     "fast": dict(resolution=256, texture_size=256, batch_size=6, steps=(200, 300, 200)),
-    "balanced": dict(resolution=320, texture_size=512, batch_size=8, steps=(500, 600, 400), max_frames=90,
-                     validation_frames=6),
+    "balanced": dict(resolution=320, texture_size=512, batch_size=8, steps=(500, 600, 400), max_frames=90),
     # the paper's schedule: 100 / 50 / 50 epochs over every frame, batches of ~18 frames
     "full": dict(resolution=448, texture_size=512, batch_size=18, steps=(None, None, None), max_frames=100000,
-                 displacement_grid="fine", validation_frames=6),
+                 displacement_grid="fine"),
 }
 
 
