@@ -4,7 +4,7 @@ from __future__ import annotations
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, PointerProperty, StringProperty
 
-# as pipeline/fit/settings.PRESET_NOTES measures them (the add-on cannot import the fitting engine)
+# as pipeline/cli.PRESET_NOTES gives the measured figures (the add-on cannot import the fitting engine)
 PRESETS = [("fast", "Fast", "About 6 min for a 150-frame clip on one CPU core"),
            ("balanced", "Balanced", "About 3x as long as Fast; not yet measured better"),
            ("full", "Full", "The paper's schedule at 448 px, about 50 min for 150 frames; level with Fast there")]

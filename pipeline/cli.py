@@ -130,9 +130,19 @@ def _demo(args):
     run_demo(args.out, progress=args.progress)
 
 
-def _preset_help():
-    from .fit.settings import PRESET_NOTES
+# what each preset (fit/settings.PRESETS) costs and buys, as measured (docs/performance.md, "The 150-frame
+# clip"); here, not in fit/, because importing the fit imports torch before configure_threads may set its
+# threads' waiting; the add-on's panel (harp_addon/properties.py) says the same
+PRESET_NOTES = {
+    "fast": "about 6 min for a 150-frame clip on one CPU core",
+    "balanced": "320 px, a 512 texture where the footage fills it, about 3x as long as fast; not yet measured "
+                "better than fast beyond the seed spread",
+    "full": "the paper's schedule at 448 px, about 50 min for 150 frames; measured level with fast there, not "
+            "better",
+}
 
+
+def _preset_help():
     return "; ".join(f"{name}{' (default)' if name == 'fast' else ''}: {note}" for name, note in PRESET_NOTES.items()) \
         + " (docs/performance.md)"
 PROGRESS_HELP = "bar (default): a progress bar; jsonl: JSON lines (for the Blender add-on); none"

@@ -84,17 +84,6 @@ PRESETS = {
 }
 
 
-# what each preset costs and buys, as measured (docs/performance.md, "The 150-frame clip"; docs/fidelity.md):
-# the command line's help and the README quote these
-PRESET_NOTES = {
-    "fast": "about 6 min for a 150-frame clip on one CPU core",
-    "balanced": "320 px, a 512 texture where the footage fills it, about 3x as long as fast; not yet measured "
-                "better than fast beyond the seed spread",
-    "full": "the paper's schedule at 448 px, about 50 min for 150 frames; level with fast there (L1 0.0300 both, "
-            "joint error 2.28 against fast's 2.11 mm)",
-}
-
-
 def texture_size_for(working_size):
     """The largest texture a clip worked at `working_size` pixels (long side) can fill: the power
     of two at or above it. A finer texture has texels smaller than the pixels that see them; on
