@@ -2,7 +2,7 @@
 and one thread, one process and two threads, and two single-threaded processes that share each
 batch (batch workers, pipeline/fit/batch_workers.py). Run it with the machine otherwise idle.
 
-    .venv/bin/python benchmarks/bench_workers.py SEQ [--steps 8] [--max-frames 150]
+    .venv/bin/python benchmarks/bench_workers.py SEQ [--preset fast] [--steps 8] [--max-frames 150]
 
 Prints a table: per kind of step, the median seconds of each setting and the speed-up of the
 two processes over one thread.
@@ -53,8 +53,9 @@ def main():
     parser.add_argument("sequence", type=Path)
     parser.add_argument("--steps", type=int, default=8)
     parser.add_argument("--max-frames", type=int, default=150)
+    parser.add_argument("--preset", default="fast")
     args = parser.parse_args()
-    setup = fitting._set_up(args.sequence, fitting.FitJob(device="cpu"),
+    setup = fitting._set_up(args.sequence, fitting.FitJob(preset=args.preset, device="cpu"),
                             {"max_frames": args.max_frames, "shadows": "off", "validation_frames": 0})
     table = {}
     for label, workers, threads in SETTINGS:
@@ -63,7 +64,7 @@ def main():
             table[label] = step_seconds(setup, args.steps)
     torch.set_num_threads(1)
     labels = [label for label, _, _ in SETTINGS]
-    print(f"{len(setup.problem.frames)} frames at {setup.problem.clip.width} px, batches of "
+    print(f"preset {args.preset}: {len(setup.problem.frames)} frames at {setup.problem.clip.width} px, batches of "
           f"{setup.problem.settings.batch_size}; seconds per step (median of {args.steps})")
     print("| step | " + " | ".join(labels) + " | 2 processes against 1 thread |")
     print("|---" * (len(labels) + 2) + "|")

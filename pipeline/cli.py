@@ -50,7 +50,7 @@ def _fit(args):
                  device=args.device, shadows=args.shadows, hold_out_every=args.hold_out_every,
                  known_appearance=args.known_appearance, observers=observers, max_steps=args.max_steps,
                  exposure=args.exposure, solve_albedo=args.solve_albedo, budget_seconds=args.budget,
-                 validation_frames=args.validation_frames)
+                 validation_frames=args.validation_frames, workers=args.workers)
     print(f"wrote {args.out} in {report['total_seconds']:.0f} s: {metrics_line(report['metrics'])}")
 
 
@@ -176,6 +176,9 @@ def build_parser():
     fit.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar", help=PROGRESS_HELP)
     fit.add_argument("--threads", type=int, metavar="N", help=THREADS_HELP)
     fit.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
+    fit.add_argument("--workers", type=int, default=1, metavar="N",
+                     help="N processes share each batch's frames (CPU): on 2 cores, 2 make full's steps 1.6-2.1x "
+                          "faster, but fast's slower than --threads 2 (default 1; docs/performance.md)")
     fit.add_argument("--hold-out-every", type=int, default=None, metavar="N",
                      help="leave every N-th frame out of the fit, for harp evaluate")
     fit.add_argument("--validation-frames", type=int, default=None, metavar="N",
