@@ -19,3 +19,16 @@ def render_tiny_clip(folder, frames, mode="hand"):
     gt = seq.read_ground_truth(folder / seq.GT_FILE)
     write_initial_estimate(folder, ground_truth_with_noise(gt, joint_degrees=5, translation_m=0.005, seed=0))
     return folder
+
+
+def exact_clip(folder, frames, size=96, turn_degrees=25):
+    """A clip of the `open` hand turning, drawn exactly (no Cycles: evaluate/exact_clips.py), with
+    a gt-noise initial estimate: the fit's quick tests."""
+    from pipeline.evaluate.exact_clips import write_clip
+    from pipeline.init import initialise_sequence
+    from synth.motions import OPEN
+
+    write_clip(folder, OPEN, frames=frames, size=size, turn_degrees=turn_degrees)
+    initialise_sequence(folder, "gt-noise", log=lambda *a: None)
+    return folder
+

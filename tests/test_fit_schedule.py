@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.evaluate.exact_clips import write_clip
+from synth_clips import exact_clip
 from pipeline.fit import fitting
 from pipeline.fit.checkpoint import CHECKPOINT_FILE, FitState, load_checkpoint
 from pipeline.fit.energy import batch_energy
@@ -16,8 +16,6 @@ from pipeline.fit.problem import build_problem
 from pipeline.fit.schedule import Schedule, StageKind, StageSpec
 from pipeline.fit.settings import settings_for
 from pipeline.formats.initial_estimate import read_initial_estimate
-from pipeline.init import initialise_sequence
-from synth.motions import OPEN
 
 FIT = dict(progress="none", texture_size=64, batch_size=2, resolution=96, shadows="off", device="cpu",
            solve_albedo=False)
@@ -68,10 +66,7 @@ def test_a_terms_weight_can_differ_by_stage():
 
 @pytest.fixture(scope="module")
 def tiny_clip(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("schedule") / "clip"
-    write_clip(folder, OPEN, frames=4, size=96, turn_degrees=25)
-    initialise_sequence(folder, "gt-noise", log=lambda *a: None)
-    return folder
+    return exact_clip(tmp_path_factory.mktemp("schedule") / "clip", frames=4)
 
 
 def test_the_shaded_render_is_made_only_when_a_term_needs_it(tiny_clip, monkeypatch):

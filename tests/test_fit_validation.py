@@ -4,13 +4,11 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.evaluate.exact_clips import write_clip
+from synth_clips import exact_clip
 from pipeline.fit import fitting, validation
 from pipeline.fit.checkpoint import CHECKPOINT_FILE, load_checkpoint
 from pipeline.fit.frames import neighbours, validation_frames
 from pipeline.formats.rotations import axis_angle_to_matrix, slerp_axis_angle
-from pipeline.init import initialise_sequence
-from synth.motions import OPEN
 
 FIT = dict(progress="none", texture_size=64, batch_size=2, resolution=96, shadows="off", device="cpu",
            solve_albedo=False, validation_frames=2)
@@ -42,10 +40,7 @@ def test_neighbours_and_the_interpolated_rotation():
 
 @pytest.fixture(scope="module")
 def clip(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("validation") / "clip"
-    write_clip(folder, OPEN, frames=20, size=96, turn_degrees=40)
-    initialise_sequence(folder, "gt-noise", log=lambda *a: None)
-    return folder
+    return exact_clip(tmp_path_factory.mktemp("validation") / "clip", frames=20, turn_degrees=40)
 
 
 def test_a_fit_scores_its_validation_frames_and_never_fits_them(clip, tmp_path):
