@@ -79,7 +79,8 @@ def _study(args):
 
     study = run_study(args.dataset, args.out, clips=args.clips, quick=args.quick, preset=args.preset,
                       sections=tuple(args.sections.split(",")), progress=args.progress,
-                      runtime_presets=tuple(args.runtime_presets.split(",")), runtime_frames=args.runtime_frames)
+                      runtime_presets=tuple(args.runtime_presets.split(",")), runtime_frames=args.runtime_frames,
+                      stability_scale=args.stability_scale)
     print(f"wrote {Path(args.out) / 'study.md'} ({study['seconds'] / 60:.0f} min)")
 
 
@@ -220,6 +221,10 @@ def build_parser():
     study.add_argument("--runtime-frames", type=int, default=30, metavar="N",
                        help="frames of the clip every preset fits in the run-time section, spread evenly "
                             "(default: 30; 0: each preset's own number)")
+    study.add_argument("--stability-scale", choices=("tiny", "fast"), default=None,
+                       help="the stability sweep's clips and schedule: tiny (4 frames, 64 px, 10 steps per stage) "
+                            "or fast (30 frames, 256 px, the fast preset's whole schedule, each fit's curve; hours "
+                            "on one core, resumable); default: fast, with --quick tiny")
     study.add_argument("--progress", choices=("bar", "jsonl", "none"), default="none",
                        help="progress of each fit (default: none; the study logs each run)")
     study.set_defaults(run=_study)

@@ -165,8 +165,8 @@ def test_study_on_two_tiny_clips_fills_every_cell(tmp_path):
     assert runtime["frames"] == 4
     assert all(len(read_report(folder)["frames"]) == 4 for folder in runtime["fits"].values())
     stability = study["sections"]["stability"]
-    assert stability["all_finite"] and {row["kind"] for row in stability["rows"]} == {"weights", "rates", "poses",
-                                                                                       "masks"}
+    assert stability["all_finite"] and {row["kind"] for row in stability["rows"]} == {
+        "baseline", "weights", "rates", "poses", "shapes", "framing", "inputs"}
     text = (tmp_path / "study" / "study.md").read_text()
     assert "## 1. Pose refinement" in text and "## 2. Error against run time" in text and "## 3. Stability" in text
     per_clip = [line.split("|")[1:-1] for line in text.split("### Per clip")[1].split("## 2.")[0].splitlines()

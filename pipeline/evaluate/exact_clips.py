@@ -65,9 +65,10 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
     gt_albedo.png). The hand (its bounding box in frame 0's pose, centred) is 80% of the image
     tall, or `hand_px` pixels; `shift` moves it by fractions of the image (x right, y down);
     `azimuth` (degrees) turns the view about the hand's long axis (90: from the thumb side);
-    `mode` "arm" renders the hand with its forearm (framed as a whole). Returns the SequenceInfo."""
+    `mode` "arm" renders the hand with its forearm (framed as a whole); `betas` (one number: every
+    shape coefficient) default to the average hand. Returns the SequenceInfo."""
     model = HandModel.load(mode, "right", dtype=torch.float64)
-    betas = np.zeros(model.num_betas) if betas is None else np.asarray(betas, dtype=np.float64)
+    betas = np.broadcast_to(np.asarray(0.0 if betas is None else betas, dtype=np.float64), (model.num_betas,)).copy()
     pose = np.broadcast_to(np.asarray(pose, dtype=np.float64), (frames, 16, 3)).copy()
     if mode == "hand":
         pose[:, 0] = 0  # no wrist joint without a forearm

@@ -19,7 +19,7 @@ run time of the presets, over a folder of synthetic clips as synth/dataset.py wr
 Every fit goes through pipeline.fit.fit (what `harp fit` runs) with the curve recorder of
 `harp fit --curve`. Finished work is kept and skipped on a rerun; a stopped fit is resumed.
 Outputs in DIR: study.md (tables in that order), study.json, plots/, and the runs (sequences/,
-fits/, runtime/, stability/).
+fits/, runtime/, stability/ or stability_fast/).
 """
 from __future__ import annotations
 
@@ -80,10 +80,12 @@ def dataset_clips(dataset, pattern=None):
 
 
 def run_study(dataset, out, clips=None, quick=False, preset="fast", sections=SECTIONS, progress="none", log=print,
-              runtime_presets=RUNTIME_PRESETS, runtime_frames=RUNTIME_FRAMES, **fit_options):
+              runtime_presets=RUNTIME_PRESETS, runtime_frames=RUNTIME_FRAMES, stability_scale=None, **fit_options):
     """Run the study's sections into `out`; returns the study dict (also study.json/study.md).
     `fit_options` go to every fit (e.g. max_steps, resolution for small tests); --quick caps
-    every stage at QUICK_STEPS steps and runs a small stability sweep."""
+    every stage at QUICK_STEPS steps and runs a small stability sweep (one case per kind, at
+    most 4 steps per stage); `stability_scale` is the sweep's scale (stability.SCALES; default
+    "fast", with --quick "tiny")."""
     out = Path(out)
     unknown = [s for s in sections if s not in SECTIONS]
     if unknown:
@@ -101,7 +103,9 @@ def run_study(dataset, out, clips=None, quick=False, preset="fast", sections=SEC
         study["sections"]["runtime"] = runtime(flips[0], out, runtime_presets, progress, log,
                                                {**frames, **fit_options})
     if "stability" in sections:
-        study["sections"]["stability"] = run_stability_sweep(out / "stability", quick=quick, log=log)
+        scale = stability_scale or ("tiny" if quick else "fast")
+        folder = out / ("stability" if scale == "tiny" else f"stability_{scale}")
+        study["sections"]["stability"] = run_stability_sweep(folder, quick=quick, scale=scale, log=log)
     study["seconds"] = time.time() - started
     write_outputs(out, study)
     return study

@@ -27,6 +27,12 @@ def write_outputs(out, study):
                                            figures=("l1_mean", "joint_mm", "psnr_mean", "vertex_mm"),
                                            labels=list(runtime["fits"]), targets=targets,
                                            title=f"error against fitting time: {runtime['clip']}"))
+    if sections.get("stability", {}).get("fits"):
+        stability = sections["stability"]
+        path = stability_curves(stability, out / PLOTS / "stability.png")
+        if path is not None:
+            plots["stability"] = str(path)
+            stability["plot"] = str(Path(path).relative_to(out))
     study["plots"] = {name: str(Path(path).relative_to(out)) if isinstance(path, (str, Path)) else
                       {k: str(Path(v).relative_to(out)) for k, v in path.items()} for name, path in plots.items()}
     (out / STUDY_JSON).write_text(json.dumps(study, indent=1))
@@ -102,17 +108,71 @@ def _reached(seconds):
 
 
 def _stability_table(section):
+    description = section.get("description") or (f"Exact 64 px clips, 4 frames, {section['steps_per_stage']} "
+                                                  "steps per stage, from `gt-noise`")
     lines = ["## 3. Stability sweep", "",
-             f"Exact 64 px clips, 4 frames, {section['steps_per_stage']} steps per stage, from `gt-noise`. "
-             f"Every entry finite: {'yes' if section['all_finite'] else 'NO'}.", "",
-             "| kind | case | finished | rollbacks | non-finite events | final loss | joint PA mm (initial) |",
-             "|---|---|---|---|---|---|---|"]
+             f"{description[0].upper()}{description[1:]}. Every entry finite: "
+             f"{'yes' if section['all_finite'] else 'NO'}. Ratios are to the unperturbed fit's; a case whose input "
+             "is not degraded should end within 20% of its joint error.", ""]
+    if section.get("plot"):
+        lines += [f"![joint error against fitting time, per kind of case]({section['plot']})", ""]
+    lines += ["| kind | case | degraded input | finished | rollbacks | non-finite events | joint PA mm (initial) | "
+              "x unperturbed | L1 | x unperturbed | fit s |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in section["rows"]:
         finished = "yes" if row["finished"] else f"no: {row['error']}"
-        lines.append(f"| {row['kind']} | {row['case']} | {finished} | {row['rollbacks']} | {row['non_finite']} | "
-                     f"{_number(row['final_loss'], 4)} | {_number(row['joint_mm'])} "
-                     f"({_number(row['initial_joint_mm'])}) |")
+        within = row.get("within_baseline")
+        flag = "" if within is None or within else " (over 20%)"
+        lines.append(f"| {row['kind']} | {row['case']} | {'yes' if row.get('degraded') else 'no'} | {finished} | "
+                     f"{row['rollbacks']} | {row['non_finite']} | {_number(row['joint_mm'])} "
+                     f"({_number(row['initial_joint_mm'])}) | {_number(row.get('joint_ratio'))}{flag} | "
+                     f"{_number(row.get('l1_mean'), 4)} | {_number(row.get('l1_ratio'))} | "
+                     f"{_number(row.get('fit_seconds'), 0)} |")
     return lines + [""]
+
+
+def stability_curves(section, path):
+    """Joint error against fitting time of the sweep's fits, one panel per kind of case, the
+    unperturbed fit in black in each; None when no fit recorded its curve."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .curve import read_curve
+
+    fits = section.get("fits") or {}
+    if not fits:
+        return None
+    kinds = {}
+    for row in section["rows"]:
+        if row["case"] in fits and row["kind"] != "baseline":
+            kinds.setdefault(row["kind"], []).append(row["case"])
+    baseline = next((row["case"] for row in section["rows"] if row["kind"] == "baseline" and row["case"] in fits),
+                    None)
+    columns = min(3, max(1, len(kinds)))
+    rows = -(-max(1, len(kinds)) // columns)
+    figure, axes = plt.subplots(rows, columns, figsize=(4.6 * columns, 3.4 * rows), squeeze=False)
+
+    def draw(axis, case, **style):
+        points = [p for p in read_curve(fits[case])["points"] if p.get("joint_mm") is not None and p["fit_seconds"] > 0]
+        axis.plot([p["fit_seconds"] for p in points], [p["joint_mm"] for p in points], label=case, **style)
+
+    for axis, (kind, cases) in zip(axes.flat, kinds.items()):
+        if baseline is not None:
+            draw(axis, baseline, color="black", linewidth=2)
+        for number, case in enumerate(cases):
+            draw(axis, case, color=f"C{number % 10}", linewidth=0.8 if len(cases) > 10 else 1.3)
+        axis.set_xscale("log")
+        axis.set_title(kind)
+        axis.set_xlabel("fitting time (s)")
+        axis.set_ylabel("joint error, PA (mm)")
+        if len(cases) <= 10:
+            axis.legend(fontsize=6)
+    for axis in list(axes.flat)[len(kinds):]:
+        axis.axis("off")
+    figure.suptitle("stability sweep: joint error against fitting time")
+    return save_figure(figure, path)
 
 
 def refinement_bars(section, path):
