@@ -88,12 +88,10 @@ class SweepCase(NamedTuple):
 
 
 def sweep_cases(quick=False):
-    """Every case of the sweep, the baseline first; --quick keeps the first of each kind."""
+    """Every case of the sweep: the baseline, the clips' cases, the rates, the weights (the order
+    they run in: the longest kind last); --quick keeps the first of each kind."""
     cases = [SweepCase("baseline", "unperturbed", "relaxed", {}, False)]
-    for term in (name for name in WEIGHTS if name not in DATA_TERMS):
-        for scale in WEIGHT_SCALES:
-            weights = {name: value * (scale if name == term else 1.0) for name, value in WEIGHTS.items()}
-            cases.append(SweepCase("weights", f"{term} x{scale:g}", "relaxed", {"weights": weights}, False))
+    cases += [SweepCase(kind, name, clip, {}, degraded) for kind, name, clip, degraded in CLIP_CASES]
     defaults = FitSettings()
     for rate in LEARNING_RATES:
         for scale in RATE_SCALES:
@@ -101,8 +99,10 @@ def sweep_cases(quick=False):
                                    False))
     cases.append(SweepCase("rates", "all x10", "relaxed",
                            {rate: getattr(defaults, rate) * 10 for rate in LEARNING_RATES}, False))
-    for kind, name, clip, degraded in CLIP_CASES:
-        cases.append(SweepCase(kind, name, clip, {}, degraded))
+    for term in (name for name in WEIGHTS if name not in DATA_TERMS):
+        for scale in WEIGHT_SCALES:
+            weights = {name: value * (scale if name == term else 1.0) for name, value in WEIGHTS.items()}
+            cases.append(SweepCase("weights", f"{term} x{scale:g}", "relaxed", {"weights": weights}, False))
     if quick:
         kinds = {}
         for case in cases:
