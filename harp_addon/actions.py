@@ -128,11 +128,12 @@ def status_line(running):
     return line
 
 
-def bind(folder, sequence=None, scene=None, pack=False):
+def bind(folder, sequence=None, scene=None, pack=False, smooth=0):
     """Bind an avatar folder into the scene (scene.bind_avatar; `pack`: its images travel inside
-    the .blend); one ActionError line on failure."""
+    the .blend; `smooth`: the keys smoothed over that many frames); one ActionError line on
+    failure."""
     try:
-        return bind_avatar(folder, sequence or None, scene=scene, pack=pack)
+        return bind_avatar(folder, sequence or None, scene=scene, pack=pack, smooth=smooth)
     except (avatar_folder.AvatarFolderError, BindError, ValueError, OSError) as error:
         raise ActionError(str(error)) from None
 

@@ -107,7 +107,7 @@ class HARP_OT_bind(_Action):
     def act(self, context, settings):
         bound = actions.bind(bpy.path.abspath(settings.avatar),
                              bpy.path.abspath(settings.sequence) if settings.sequence else None, context.scene,
-                             pack=settings.pack_on_bind)
+                             pack=settings.pack_on_bind, smooth=settings.smooth_frames)
         return f"bound {len(bound.frames)} frames into {bound.collection.name}"
 
 

@@ -47,6 +47,7 @@ class HARP_PT_panel(bpy.types.Panel):
         box.label(text="3. Bind", icon="OUTLINER_OB_ARMATURE")
         box.prop(settings, "avatar")
         box.prop(settings, "pack_on_bind")
+        box.prop(settings, "smooth_frames")
         box.operator("harp.bind", icon="LINKED")
 
         box = layout.box()

@@ -2,7 +2,7 @@
 the footage camera, the armature at the person's rest joints, the personalised mesh skinned to
 it (vertex groups from the skin weights, an Armature modifier: plain linear blend skinning), a
 skin material (albedo, tangent-space normal map), and rotation keys on the root and every pose
-bone at every fitted frame.
+bone at every fitted frame (optionally smoothed over a window of frames: formats/pose_smoothing.py).
 
 Images are loaded by their absolute paths, so a .blend saved anywhere records them relative to
 its own folder, whatever the working directory; with `pack` they travel inside it (the albedo,
@@ -28,7 +28,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
-from .core import avatar_folder, camera, rotations, sequence_folder
+from .core import avatar_folder, camera, pose_smoothing, rotations, sequence_folder
 from .rig import build_hand_rig
 
 CAPTURE_TO_WORLD = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])
@@ -70,13 +70,18 @@ def removing_on_failure():
         raise
 
 
-def bind_avatar(folder, sequence=None, scene=None, name=None, pack=False) -> BoundAvatar:
+def bind_avatar(folder, sequence=None, scene=None, name=None, pack=False, smooth=0) -> BoundAvatar:
     """Bind the avatar folder `folder` into `scene` (default: the current one). `sequence` is
     its footage (a sequence folder: sets the frame rate and range, the resolution and the
     camera's background); default: the footage the avatar records, when it still exists.
-    `pack` packs the images into the .blend."""
+    `pack` packs the images into the .blend; `smooth` (frames, odd, or 0) smooths the keys
+    (pose_smoothing.smooth_poses: less jitter, and on synthetic clips closer to the truth)."""
     folder = Path(folder)
     files = avatar_folder.read_avatar_folder(folder)
+    try:
+        poses = pose_smoothing.smooth_poses(files.poses, smooth)
+    except pose_smoothing.SmoothingError as error:
+        raise BindError(str(error)) from None
     scene = scene or bpy.context.scene
     footage = _footage(files, sequence)
     width, height, K = _camera_at(files, footage)
@@ -91,7 +96,8 @@ def bind_avatar(folder, sequence=None, scene=None, name=None, pack=False) -> Bou
         rig.mesh.data.materials.append(_skin_material(name, files, pack))
         _fitted_light(name, collection, space, files, scene)
         frames = FIRST_FRAME + np.asarray(files.poses.frames, dtype=np.int64)
-        _keyframes(rig, files.poses, frames)
+        _keyframes(rig, poses, frames)
+        collection["harp_smoothing_frames"] = pose_smoothing.check_window(smooth)
         _scene_settings(scene, camera_object, footage, width, height, frames)
     return BoundAvatar(collection, space, rig.armature, rig.mesh, camera_object, frames, K, width, height, files)
 
@@ -289,11 +295,7 @@ _LINEAR = bpy.types.Keyframe.bl_rna.properties["interpolation"].enum_items["LINE
 
 def _continuous(quaternions):
     """(F, 4) quaternions with signs flipped where needed so consecutive ones agree."""
-    q = np.array(quaternions, dtype=np.float64)
-    for i in range(1, len(q)):
-        if np.dot(q[i], q[i - 1]) < 0:
-            q[i] = -q[i]
-    return q
+    return pose_smoothing.continuous_quaternions(quaternions)
 
 
 def _scene_settings(scene, camera_object, footage, width, height, frames):

@@ -1,4 +1,4 @@
-"""`harp blend AVATAR --out scene.blend [--gltf hand.glb] [--pack]`: the Blender add-on's binding
+"""`harp blend AVATAR --out scene.blend [--gltf hand.glb] [--pack] [--smooth N]`: the Blender add-on's binding
 without its interface, through the bpy module (for pipelines and tests): a new empty scene, the
 avatar bound into it (harp_addon/scene.py), saved, and optionally exported as glTF binary. The
 .blend finds its images relative to its own folder, or, with `pack`, carries them inside."""
@@ -11,8 +11,9 @@ class BlendError(ValueError):
     """The scene cannot be made (one-line message)."""
 
 
-def blend_avatar(avatar, out, gltf=None, sequence=None, pack=False):
-    """Write `out` (.blend) and `gltf` (.glb) of the avatar folder; returns the paths written."""
+def blend_avatar(avatar, out, gltf=None, sequence=None, pack=False, smooth=0):
+    """Write `out` (.blend) and `gltf` (.glb) of the avatar folder (its keys smoothed over
+    `smooth` frames, 0: as fitted); returns the paths written."""
     try:
         import bpy
     except ImportError:
@@ -21,7 +22,7 @@ def blend_avatar(avatar, out, gltf=None, sequence=None, pack=False):
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     try:
-        bound = actions.bind(avatar, sequence, pack=pack)
+        bound = actions.bind(avatar, sequence, pack=pack, smooth=smooth)
     except actions.ActionError as error:
         raise BlendError(str(error)) from None
     return actions.export(bound, gltf=gltf, blend=Path(out))

@@ -103,6 +103,28 @@ def test_bound_avatar_reproduces_every_fitted_frame(prepared_avatar, arm_avatar,
     assert groups == set(bound.files.rig.joint_names)
 
 
+def test_smoothed_keys_carry_the_smoothed_motion(arm_avatar, empty_scene):
+    from pipeline.formats import pose_smoothing, rotations
+
+    files = av.read_avatar_folder(arm_avatar)
+    smoothed = pose_smoothing.smooth_poses(files.poses, 5)
+    assert np.abs(smoothed.pose - files.poses.pose).max() > 1e-3          # the filter changes this motion
+    bound = bind_avatar(arm_avatar, smooth=5)
+    names = bound.files.rig.joint_names[:smoothed.pose.shape[1]]
+    worst = 0.0
+    for index, frame in enumerate(bound.frames):
+        empty_scene.frame_set(int(frame))
+        keyed = [np.array(bound.armature.pose.bones[name].rotation_quaternion) for name in names]
+        expected = rotations.axis_angle_to_quaternion(smoothed.pose[index])
+        worst = max(worst, max(1 - abs(q @ e) for q, e in zip(keyed, expected)))
+        root = rotations.axis_angle_to_quaternion(smoothed.global_orient[index])
+        assert abs(abs(np.array(bound.armature.rotation_quaternion) @ root) - 1) < 1e-5
+        assert np.abs(np.array(bound.armature.location) - smoothed.transl[index]).max() < 1e-5
+    assert worst < 1e-5 and bound.collection["harp_smoothing_frames"] == 5
+    with pytest.raises(actions.ActionError, match="odd number of frames"):
+        actions.bind(arm_avatar, smooth=6)
+
+
 def test_gltf_round_trip(arm_avatar, tmp_path, empty_scene):
     bound = bind_avatar(arm_avatar)
     path = actions.export(bound, gltf=tmp_path / "hand.glb", blend=tmp_path / "hand.blend")[0]
