@@ -12,7 +12,7 @@ import bpy
 
 from . import engine
 from .core import avatar_folder, sequence_folder
-from .export import ExportError, export_gltf, save_blend
+from .export import ExportError, export_fbx, export_gltf, save_blend
 from .jobs import Job
 from .scene import BindError, bind_avatar, footage_camera
 
@@ -138,13 +138,15 @@ def bind(folder, sequence=None, scene=None, pack=False, smooth=0):
         raise ActionError(str(error)) from None
 
 
-def export(bound, gltf=None, blend=None, pack=False):
-    """Write the .glb and the .blend (`pack`: with every image inside it) that are asked for;
-    one ActionError line on failure."""
+def export(bound, gltf=None, blend=None, pack=False, fbx=None):
+    """Write the .glb, the .fbx and the .blend (`pack`: with every image inside it) that are
+    asked for; one ActionError line on failure."""
     written = []
     try:
         if gltf:
             written.append(export_gltf(bound, gltf))
+        if fbx:
+            written.append(export_fbx(bound, fbx))
         if blend:
             written.append(save_blend(blend, pack=pack))
     except ExportError as error:

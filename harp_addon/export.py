@@ -1,5 +1,6 @@
-"""Exports of a bound avatar (bpy): glTF binary with Blender's own exporter (the skinned mesh,
-its armature and the fitted motion) and the .blend file, its images packed or not."""
+"""Exports of a bound avatar (bpy): glTF binary and FBX with Blender's own exporters (the
+skinned mesh, its armature, its textures and the fitted motion) and the .blend file, its images
+packed or not."""
 from __future__ import annotations
 
 import contextlib
@@ -15,7 +16,41 @@ class ExportError(ValueError):
 def export_gltf(bound, path) -> Path:
     """Write the hand of `bound` (a scene.BoundAvatar) as a .glb: mesh, skin and animation."""
     path = Path(path)
+    with _selected(bound):
+        _run_exporter("glTF", bpy.ops.export_scene.gltf, path, export_format="GLB", use_selection=True,
+                      export_animations=True, export_skins=True, export_yup=True, export_animation_mode="ACTIONS",
+                      export_force_sampling=True)
+    return path
+
+
+def export_fbx(bound, path) -> Path:
+    """Write the hand of `bound` as an .fbx (for game engines and other 3D tools): mesh, skin,
+    the textures embedded, and the motion baked at every scene frame, unsimplified, on the
+    armature's own bones (no leaf bones added)."""
+    path = Path(path)
+    with _selected(bound):
+        _run_exporter("FBX", bpy.ops.export_scene.fbx, path, use_selection=True, object_types={"ARMATURE", "MESH"},
+                      add_leaf_bones=False, bake_anim=True, bake_anim_use_all_actions=False,
+                      bake_anim_use_nla_strips=False, bake_anim_simplify_factor=0.0, bake_anim_step=1.0,
+                      bake_anim_force_startend_keying=True, path_mode="COPY", embed_textures=True,
+                      armature_nodetype="NULL", use_armature_deform_only=True)
+    return path
+
+
+def _run_exporter(kind, operator, path, **options):
     path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        result = operator(filepath=str(path), **options)
+    except RuntimeError as error:
+        raise ExportError(f"{kind} export failed: {str(error).strip().splitlines()[-1]}") from None
+    if "FINISHED" not in result or not path.is_file():
+        raise ExportError(f"{kind} export to {path} did not finish")
+
+
+@contextlib.contextmanager
+def _selected(bound):
+    """The armature and the mesh of `bound` selected (the armature active) for the block; the
+    selection as it was afterwards."""
     view_layer = bpy.context.view_layer
     previous = [obj for obj in view_layer.objects if obj.select_get()], view_layer.objects.active
     for obj in view_layer.objects:
@@ -24,18 +59,11 @@ def export_gltf(bound, path) -> Path:
         obj.select_set(True)
     view_layer.objects.active = bound.armature
     try:
-        result = bpy.ops.export_scene.gltf(filepath=str(path), export_format="GLB", use_selection=True,
-                                           export_animations=True, export_skins=True, export_yup=True,
-                                           export_animation_mode="ACTIONS", export_force_sampling=True)
-    except RuntimeError as error:
-        raise ExportError(f"glTF export failed: {str(error).strip().splitlines()[-1]}") from None
+        yield
     finally:
         for obj in view_layer.objects:
             obj.select_set(obj in previous[0])
         view_layer.objects.active = previous[1]
-    if "FINISHED" not in result or not path.is_file():
-        raise ExportError(f"glTF export to {path} did not finish")
-    return path
 
 
 def save_blend(path, pack=False) -> Path:

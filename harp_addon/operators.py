@@ -112,12 +112,13 @@ class HARP_OT_bind(_Action):
 
 
 class HARP_OT_export(_Action):
-    """Export the newest bound hand: glTF binary (skin and motion) and a .blend"""
+    """Export the newest bound hand: glTF binary and FBX (skin, textures and motion) and a .blend"""
     bl_idname, bl_label = "harp.export", "Export"
 
     def act(self, context, settings):
         written = actions.export(actions.last_bound(context.scene), bpy.path.abspath(settings.gltf) or None,
-                                 bpy.path.abspath(settings.blend) or None, pack=settings.pack_on_export)
+                                 bpy.path.abspath(settings.blend) or None, pack=settings.pack_on_export,
+                                 fbx=bpy.path.abspath(settings.fbx) or None)
         return "wrote " + ", ".join(str(path) for path in written)
 
 

@@ -53,6 +53,7 @@ class HARP_PT_panel(bpy.types.Panel):
         box = layout.box()
         box.label(text="4. Export", icon="EXPORT")
         box.prop(settings, "gltf")
+        box.prop(settings, "fbx")
         box.prop(settings, "blend")
         box.prop(settings, "pack_on_export")
         box.operator("harp.export", icon="EXPORT")

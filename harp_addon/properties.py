@@ -34,6 +34,8 @@ class HarpSettings(bpy.types.PropertyGroup):
                                            "keys as they are). 7-9 frames took out 70-77% of the jitter on "
                                            "synthetic clips and brought the joints closer to the truth")
     gltf: StringProperty(name="glTF", subtype="FILE_PATH", default="//hand.glb")
+    fbx: StringProperty(name="FBX", subtype="FILE_PATH", default="",
+                        description="Also export the hand as FBX (skin, embedded textures, motion); empty: no FBX")
     blend: StringProperty(name=".blend", subtype="FILE_PATH", default="//hand.blend")
     pack_on_export: BoolProperty(name="Pack images", default=True,
                                  description="The exported .blend carries every image inside it (the open file "

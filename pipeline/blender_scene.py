@@ -1,6 +1,6 @@
-"""`harp blend AVATAR --out scene.blend [--gltf hand.glb] [--pack] [--smooth N]`: the Blender add-on's binding
+"""`harp blend AVATAR --out scene.blend [--gltf hand.glb] [--fbx hand.fbx] [--pack] [--smooth N]`: the Blender add-on's binding
 without its interface, through the bpy module (for pipelines and tests): a new empty scene, the
-avatar bound into it (harp_addon/scene.py), saved, and optionally exported as glTF binary. The
+avatar bound into it (harp_addon/scene.py), saved, and optionally exported as glTF binary and FBX. The
 .blend finds its images relative to its own folder, or, with `pack`, carries them inside."""
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ class BlendError(ValueError):
     """The scene cannot be made (one-line message)."""
 
 
-def blend_avatar(avatar, out, gltf=None, sequence=None, pack=False, smooth=0):
-    """Write `out` (.blend) and `gltf` (.glb) of the avatar folder (its keys smoothed over
+def blend_avatar(avatar, out, gltf=None, sequence=None, pack=False, smooth=0, fbx=None):
+    """Write `out` (.blend), `gltf` (.glb) and `fbx` (.fbx) of the avatar folder (its keys smoothed over
     `smooth` frames, 0: as fitted); returns the paths written."""
     try:
         import bpy
@@ -25,4 +25,4 @@ def blend_avatar(avatar, out, gltf=None, sequence=None, pack=False, smooth=0):
         bound = actions.bind(avatar, sequence, pack=pack, smooth=smooth)
     except actions.ActionError as error:
         raise BlendError(str(error)) from None
-    return actions.export(bound, gltf=gltf, blend=Path(out))
+    return actions.export(bound, gltf=gltf, blend=Path(out), fbx=fbx)

@@ -64,7 +64,7 @@ def _blend(args):
     from .blender_scene import blend_avatar
 
     for path in blend_avatar(args.avatar, args.out, gltf=args.gltf, sequence=args.sequence, pack=args.pack,
-                             smooth=args.smooth):
+                             smooth=args.smooth, fbx=args.fbx):
         print(f"wrote {path}")
 
 
@@ -263,6 +263,8 @@ def build_parser():
     blend.add_argument("avatar", help="avatar folder written by harp fit")
     blend.add_argument("--out", required=True, help=".blend file to write")
     blend.add_argument("--gltf", default=None, help="also export the hand (skin + motion) as this .glb")
+    blend.add_argument("--fbx", default=None,
+                       help="also export the hand (skin, embedded textures, motion baked at every frame) as this .fbx")
     blend.add_argument("--sequence", default=None,
                        help="the footage's sequence folder (default: the one the avatar was fitted to, if present)")
     blend.add_argument("--pack", action="store_true",

@@ -141,14 +141,48 @@ def test_gltf_round_trip(arm_avatar, tmp_path, empty_scene):
     assert (tmp_path / "hand.blend").is_file()
 
 
+def test_fbx_round_trip(arm_avatar, tmp_path, empty_scene):
+    """Blender's FBX importer reads back what the export wrote: the same evaluated mesh at every
+    frame, the armature's bones, the textures inside the file."""
+    bound = bind_avatar(arm_avatar)
+    expected = {}
+    for frame in bound.frames:
+        empty_scene.frame_set(int(frame))
+        expected[int(frame)] = evaluated_vertices(bound.mesh)
+    bones = {bone.name for bone in bound.armature.data.bones}
+    path = actions.export(bound, fbx=tmp_path / "hand.fbx")[0]
+    fps = empty_scene.render.fps
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.context.scene.render.fps = fps
+    bpy.ops.import_scene.fbx(filepath=str(path), anim_offset=0.0)   # the file's times as written
+    armatures = [o for o in bpy.data.objects if o.type == "ARMATURE"]
+    meshes = [o for o in bpy.data.objects if o.type == "MESH"]
+    assert len(armatures) == 1 and len(meshes) == 1 and meshes[0].parent == armatures[0]
+    assert {bone.name for bone in armatures[0].data.bones} == bones
+    worst = 0.0
+    for frame, vertices in expected.items():
+        bpy.context.scene.frame_set(frame)
+        worst = max(worst, np.abs(evaluated_vertices(meshes[0]) - vertices).max() * 1000)
+    print(f"FBX round trip: worst vertex difference {worst:.2e} mm over {len(expected)} frames")
+    assert worst < 0.1
+    images = {image.name: image for image in bpy.data.images}
+    assert {"albedo.png", "normal.png"} <= set(images)
+    for image in images.values():
+        image.reload()
+        assert image.packed_file is not None and tuple(image.size) == (64, 64) and image.has_data  # size loads it
+
+
 def test_harp_blend(arm_avatar, tmp_path, capsys):
     from pipeline.cli import main
 
     assert main(["blend", str(arm_avatar), "--out", str(tmp_path / "scene.blend"), "--gltf",
-                 str(tmp_path / "hand.glb")]) == 0
-    assert (tmp_path / "scene.blend").stat().st_size > 10000 and (tmp_path / "hand.glb").stat().st_size > 10000
+                 str(tmp_path / "hand.glb"), "--fbx", str(tmp_path / "hand.fbx"), "--smooth", "5"]) == 0
+    for name in ("scene.blend", "hand.glb", "hand.fbx"):
+        assert (tmp_path / name).stat().st_size > 10000, name
     assert main(["blend", str(tmp_path / "missing"), "--out", str(tmp_path / "x.blend")]) == 1
     assert "avatar folder not found" in capsys.readouterr().err
+    assert main(["blend", str(arm_avatar), "--out", str(tmp_path / "y.blend"), "--smooth", "4"]) == 1
+    assert "odd number of frames" in capsys.readouterr().err and not (tmp_path / "y.blend").exists()
 
 
 @pytest.mark.parametrize("damage, message", [
