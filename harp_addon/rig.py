@@ -8,6 +8,10 @@ its head at the shaped joint pivot, a joint's axis-angle is the pose bone's rota
 frame, and the global rotation and translation are the armature object's matrix_world. The
 mesh's basis is the shaped template (vertices + shapedirs @ betas); the "personal" shape key
 adds the identity's displacements, so muting it gives the model's own surface.
+
+Bones (and their vertex groups) are the model's joint names with Blender's side suffix,
+`index1.R` or `index1.L` (bone_names), so that Blender's mirror tools (X-flipped pose paste,
+symmetrize) pair a left hand with a right one.
 """
 from __future__ import annotations
 
@@ -20,6 +24,7 @@ from mathutils import Matrix
 from .core import rotations
 
 PERSONAL_KEY = "personal"
+SIDE_SUFFIX = {"right": ".R", "left": ".L"}
 MIN_BONE_LENGTH = 0.01  # metres; bone length only affects how the rig is drawn
 
 
@@ -32,10 +37,14 @@ class HandRig:
     mesh: bpy.types.Object
     rest_keypoints: np.ndarray   # (K, 3) shaped rest keypoints (model space)
 
+    @property
+    def bone_names(self):
+        return bone_names(self.data)
+
     def set_pose(self, pose, global_orient, transl):
         """pose (16, 3) local axis-angle, global_orient (3,) axis-angle about the wrist, transl (3,)."""
         for j in range(16):
-            bone = self.armature.pose.bones[self.data.joint_names[j]]
+            bone = self.armature.pose.bones[self.bone_names[j]]
             bone.rotation_quaternion = rotations.axis_angle_to_quaternion(pose[j]).tolist()
         world = np.eye(4)
         world[:3, :3] = rotations.axis_angle_to_matrix(global_orient)
@@ -47,7 +56,7 @@ class HandRig:
         """(J, 4, 4) rest-to-posed world transform of every bone, from Blender's pose."""
         world = np.array(self.armature.matrix_world)
         return np.stack([world @ np.array(bone.matrix) @ np.linalg.inv(np.array(bone.bone.matrix_local))
-                         for bone in (self.armature.pose.bones[name] for name in self.data.joint_names)])
+                         for bone in (self.armature.pose.bones[name] for name in self.bone_names)])
 
     def keypoints(self):
         """(K, 3) posed keypoints: each rest keypoint carried by its joint's transform."""
@@ -75,6 +84,11 @@ class HandRig:
         return co @ world[:3, :3].T + world[:3, 3]
 
 
+def bone_names(data):
+    """The Blender bone of each joint of `data` (HandModelData): its name and the side's suffix."""
+    return [f"{name}{SIDE_SUFFIX[data.side]}" for name in data.joint_names]
+
+
 def build_hand_rig(data, betas, personal_offsets=None, collection=None, name="hand"):
     """Create the armature and skinned mesh of `data` (HandModelData) with shape `betas` (S,)
     and optional rest-space personal offsets (V, 3) in metres. Returns a HandRig."""
@@ -86,8 +100,8 @@ def build_hand_rig(data, betas, personal_offsets=None, collection=None, name="ha
 
     armature = _build_armature(data, joints, keypoints, collection, name)
     mesh_object = _build_mesh(data, vertices, personal_offsets, collection, name)
-    for j, joint_name in enumerate(data.joint_names):
-        group = mesh_object.vertex_groups.new(name=joint_name)
+    for j, bone_name in enumerate(bone_names(data)):
+        group = mesh_object.vertex_groups.new(name=bone_name)
         rows, slots = np.nonzero((data.skin_indices == j) & (data.skin_weights > 0))
         for vertex, slot in zip(rows.tolist(), slots.tolist()):
             group.add([vertex], float(data.skin_weights[vertex, slot]), "REPLACE")
@@ -130,8 +144,8 @@ def _build_armature(data, joints, keypoints, collection, name):
     bpy.ops.object.mode_set(mode="EDIT")
     lengths = _bone_lengths(data, joints, keypoints)
     bones = []
-    for j, joint_name in enumerate(data.joint_names):
-        bone = armature_data.edit_bones.new(joint_name)
+    for j, bone_name in enumerate(bone_names(data)):
+        bone = armature_data.edit_bones.new(bone_name)
         bone.head, bone.tail = (0.0, 0.0, 0.0), (0.0, float(lengths[j]), 0.0)
         rest = np.eye(4)
         rest[:3, :3] = data.joint_frames[j]

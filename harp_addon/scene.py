@@ -270,8 +270,8 @@ def _keyframes(rig, poses, frames):
     armature.animation_data.action = action
     channels = {"location": np.asarray(poses.transl),
                 "rotation_quaternion": _continuous(rotations.axis_angle_to_quaternion(poses.global_orient))}
-    for j, joint in enumerate(rig.data.joint_names[:len(poses.pose[0])]):
-        channels[f'pose.bones["{joint}"].rotation_quaternion'] = _continuous(
+    for j, bone in enumerate(rig.bone_names[:len(poses.pose[0])]):
+        channels[f'pose.bones["{bone}"].rotation_quaternion'] = _continuous(
             rotations.axis_angle_to_quaternion(poses.pose[:, j]))
     for path, values in channels.items():
         for index in range(values.shape[1]):

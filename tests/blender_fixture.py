@@ -20,6 +20,7 @@ import numpy as np
 
 ENVIRONMENT = "HARP_BLENDER_FIXTURE"
 REFERENCE_FILE = "reference.npz"
+SIDES = ("right", "left")
 FRAMES, FRAME_SIZE, TEXTURE_SIZE = 4, 96, 64      # the clip's frames (square, px) and the fitted texture (px)
 FIT = dict(progress="none", max_steps=12, texture_size=TEXTURE_SIZE, batch_size=2, resolution=FRAME_SIZE,
            device="cpu")
@@ -33,19 +34,20 @@ class PreparedAvatar:
     keypoints: np.ndarray    # (F, 21, 3) the fitted keypoints likewise
 
 
-def prepare(folder) -> PreparedAvatar:
-    """Render the clip, fit it and write the fit's reference into `folder` (needs torch)."""
+def prepare(folder, side="right") -> PreparedAvatar:
+    """Render the clip of a `side` hand, fit it and write the fit's reference into
+    `folder`/`side` (needs torch)."""
     import torch
 
     from pipeline.evaluate.finished_fit import fitted_avatar, posed_surfaces
     from pipeline.fit import fit
     from synth_clips import render_tiny_clip
 
-    folder = Path(folder)
+    folder = Path(folder) / side
     threads = torch.get_num_threads()
     torch.set_num_threads(1)    # as fast for a fit this small, and fair to whatever else runs
     try:
-        clip = render_tiny_clip(folder / "clip", frames=FRAMES, mode="arm")
+        clip = render_tiny_clip(folder / "clip", frames=FRAMES, mode="arm", side=side)
         fit(clip, folder / "avatar", **FIT)
         avatar, _ = fitted_avatar(folder / "avatar", clip, "cpu")
         surfaces = posed_surfaces(avatar)
@@ -63,19 +65,20 @@ def load(folder) -> PreparedAvatar:
         return PreparedAvatar(folder / "clip", folder / "avatar", reference["surfaces"], reference["keypoints"])
 
 
-def prepared(folder) -> PreparedAvatar:
+def prepared(folder, side="right") -> PreparedAvatar:
     """For the tests: made in `folder` where torch is installed, else the one HARP_BLENDER_FIXTURE
     names (the test is skipped when there is neither)."""
     if importlib.util.find_spec("torch") is not None:
-        return prepare(folder)
+        return prepare(folder, side)
     named = os.environ.get(ENVIRONMENT)
     if not named:
         import pytest
 
         pytest.skip(f"no torch to fit an avatar, and no {ENVIRONMENT} (tools/blender_versions.py sets it)")
-    return load(named)
+    return load(Path(named) / side)
 
 
 if __name__ == "__main__":
     sys.path.insert(0, str(Path(__file__).resolve().parent))    # synth_clips
-    print(f"prepared {prepare(Path(sys.argv[1])).avatar}")
+    for side in SIDES:
+        print(f"prepared {prepare(Path(sys.argv[1]), side).avatar}")

@@ -38,6 +38,12 @@ def prepared_avatar(tmp_path_factory):
     return prepared(tmp_path_factory.mktemp("prepared"))
 
 
+@pytest.fixture(scope="module")
+def prepared_left_avatar(tmp_path_factory):
+    """The same for a left hand + forearm."""
+    return prepared(tmp_path_factory.mktemp("prepared_left"), "left")
+
+
 @pytest.fixture
 def empty_scene():
     """Blender (the bpy module) with a new, empty scene."""

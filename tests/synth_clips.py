@@ -11,10 +11,10 @@ from pipeline.formats.initial_estimate import write_initial_estimate
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def render_tiny_clip(folder, frames, mode="hand"):
+def render_tiny_clip(folder, frames, mode="hand", side="right"):
     result = subprocess.run([sys.executable, str(ROOT / "synth" / "render.py"), "--out", str(folder), "--frames",
                              str(frames), "--width", "96", "--height", "96", "--samples", "1", "--texture-size", "128",
-                             "--motion", "flip", "--mode", mode], capture_output=True, text=True, timeout=300)
+                             "--motion", "flip", "--mode", mode, "--side", side], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
     gt = seq.read_ground_truth(folder / seq.GT_FILE)
     write_initial_estimate(folder, ground_truth_with_noise(gt, joint_degrees=5, translation_m=0.005, seed=0))

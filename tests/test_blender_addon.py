@@ -20,6 +20,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from harp_addon import actions  # noqa: E402
+from harp_addon.rig import bone_names  # noqa: E402
 from harp_addon.scene import CAPTURE_TO_WORLD, FIRST_FRAME, bind_avatar  # noqa: E402
 from pipeline.formats import avatar_folder as av  # noqa: E402
 from pipeline.formats import sequence_folder as seq  # noqa: E402
@@ -64,30 +65,37 @@ def rig_keypoints(bound, data):
     world = np.array(armature.matrix_world)
     transforms = np.stack([world @ np.array(armature.pose.bones[name].matrix)
                            @ np.linalg.inv(np.array(armature.pose.bones[name].bone.matrix_local))
-                           for name in data.joint_names])[data.keypoint_joints[:21]]
+                           for name in bone_names(data)])[data.keypoint_joints[:21]]
     return np.einsum("kij,kj->ki", transforms[:, :3, :3], data.keypoints[:21]) + transforms[:, :3, 3]
 
 
-def test_bound_avatar_reproduces_every_fitted_frame(prepared_avatar, arm_avatar, arm_clip, empty_scene):
+def bind_errors(prepared, scene):
+    """(the bound avatar, worst vertex error mm, worst keypoint error px) of a bind of the
+    prepared avatar against the fit's own posed surfaces and keypoints (made in torch)."""
     from bpy_extras.object_utils import world_to_camera_view
     from mathutils import Vector
 
-    surfaces, keypoints = prepared_avatar.surfaces, prepared_avatar.keypoints    # the fit's own, in torch
-    bound = bind_avatar(arm_avatar)
-    info = seq.read_sequence_info(arm_clip)
-    assert (bound.width, bound.height) == (info.width, info.height)
-    assert len(bound.armature.data.bones) == 17 and bound.armature.data.bones.get("forearm")  # arm mode
+    surfaces, keypoints = prepared.surfaces, prepared.keypoints
+    bound = bind_avatar(prepared.avatar)
     to_capture = np.linalg.inv(CAPTURE_TO_WORLD)
     worst_mm, worst_px = 0.0, 0.0
     for index, frame in enumerate(bound.frames):
-        empty_scene.frame_set(int(frame))
+        scene.frame_set(int(frame))
         blender = evaluated_vertices(bound.mesh) @ to_capture[:3, :3].T + to_capture[:3, 3]
         worst_mm = max(worst_mm, np.abs(blender - surfaces[index]).max() * 1000)
         fitted_px = (keypoints[index] @ bound.K.T)[:, :2] / keypoints[index][:, 2:]
         for point, expected in zip(rig_keypoints(bound, bound.files.rig), fitted_px):
-            view = world_to_camera_view(empty_scene, bound.camera, Vector(point))
+            view = world_to_camera_view(scene, bound.camera, Vector(point))
             worst_px = max(worst_px, np.abs([view.x * bound.width - expected[0],
                                              (1 - view.y) * bound.height - expected[1]]).max())
+    return bound, worst_mm, worst_px
+
+
+def test_bound_avatar_reproduces_every_fitted_frame(prepared_avatar, arm_avatar, arm_clip, empty_scene):
+    bound, worst_mm, worst_px = bind_errors(prepared_avatar, empty_scene)
+    info = seq.read_sequence_info(arm_clip)
+    assert (bound.width, bound.height) == (info.width, info.height)
+    assert len(bound.armature.data.bones) == 17 and bound.armature.data.bones.get("forearm.R")  # arm mode
     print(f"worst vertex error {worst_mm:.2e} mm, worst keypoint {worst_px:.2e} px")
     assert worst_mm < 0.1 and worst_px < 0.5
     # the scene follows the footage; a second bind makes a second hand
@@ -100,7 +108,15 @@ def test_bound_avatar_reproduces_every_fitted_frame(prepared_avatar, arm_avatar,
     nodes = {node.bl_idname for node in bound.mesh.data.materials[0].node_tree.nodes}
     assert {"ShaderNodeTexImage", "ShaderNodeNormalMap", "ShaderNodeBsdfPrincipled"} <= nodes
     groups = {group.name for group in bound.mesh.vertex_groups}
-    assert groups == set(bound.files.rig.joint_names)
+    assert groups == set(bone_names(bound.files.rig)) and "index1.R" in groups
+
+
+def test_a_left_hand_binds_as_exactly_as_a_right_one(prepared_left_avatar, empty_scene):
+    bound, worst_mm, worst_px = bind_errors(prepared_left_avatar, empty_scene)
+    print(f"left hand: worst vertex error {worst_mm:.2e} mm, worst keypoint {worst_px:.2e} px")
+    assert bound.files.rig.side == "left"
+    assert {bone.name for bone in bound.armature.data.bones} == {f"{name}.L" for name in bound.files.rig.joint_names}
+    assert worst_mm < 0.001 and worst_px < 0.01
 
 
 def test_smoothed_keys_carry_the_smoothed_motion(arm_avatar, empty_scene):
@@ -110,7 +126,7 @@ def test_smoothed_keys_carry_the_smoothed_motion(arm_avatar, empty_scene):
     smoothed = pose_smoothing.smooth_poses(files.poses, 5)
     assert np.abs(smoothed.pose - files.poses.pose).max() > 1e-3          # the filter changes this motion
     bound = bind_avatar(arm_avatar, smooth=5)
-    names = bound.files.rig.joint_names[:smoothed.pose.shape[1]]
+    names = bone_names(bound.files.rig)[:smoothed.pose.shape[1]]
     worst = 0.0
     for index, frame in enumerate(bound.frames):
         empty_scene.frame_set(int(frame))

@@ -90,12 +90,13 @@ def run_tests(version, fixture) -> tuple[bool, str]:
 
 def main(versions):
     sys.path.insert(0, str(ROOT / "tests"))
-    from blender_fixture import prepare
+    from blender_fixture import SIDES, prepare
 
     results = {}
     with tempfile.TemporaryDirectory(prefix="harp-blender-") as fixture:
         print("fitting the avatar the tests bind (tests/blender_fixture.py)", flush=True)
-        prepare(fixture)
+        for side in SIDES:
+            prepare(fixture, side)
         for version in versions:
             results[version] = run_tests(version, fixture)
     print("\nBlender versions:")
