@@ -93,6 +93,19 @@ def cancel(scene_name):
     return running
 
 
+def key_pressed(scene_name, key, value):
+    """What a key does while the scene's job may run (the Esc listener's logic): Esc pressed stops
+    the job as Cancel does ("cancelled"); with no job running the listener is done ("idle");
+    any other key is left to Blender ("ignored")."""
+    running = JOBS.get(scene_name)
+    if running is None or not running.job.active:
+        return "idle"
+    if key == "ESC" and value == "PRESS":
+        running.job.cancel()
+        return "cancelled"
+    return "ignored"
+
+
 def poll(scene):
     """Move the scene's job on and mirror it into the scene's HARP settings; when it has just
     finished, set up what follows (the footage camera after an import, the avatar path after a

@@ -35,6 +35,8 @@ class ProgressEvent:
     done: int | None = None
     total: int | None = None
     seconds_left: float | None = None
+    stage_number: int | None = None    # the stage's place among the fit's stages (from 1), and their count
+    stage_count: int | None = None
 
 
 def parse_progress_line(line):
@@ -51,7 +53,8 @@ def parse_progress_line(line):
         if entry.get("event") == "progress":
             return ProgressEvent("progress", stage=entry.get("stage"), step=entry.get("step"), loss=entry.get("loss"),
                                  done=entry.get("done"), total=entry.get("total"),
-                                 seconds_left=entry.get("seconds_left"))
+                                 seconds_left=entry.get("seconds_left"), stage_number=entry.get("stage_number"),
+                                 stage_count=entry.get("stage_count"))
         return ProgressEvent("log", str(entry.get("message", text)))
     return ProgressEvent("log", text)
 
@@ -151,7 +154,8 @@ class Job:
             p = self.progress
             loss = f", loss {p.loss:.4f}" if p.loss is not None else ""
             left = f", {_duration(p.seconds_left)} left" if p.seconds_left is not None else ""
-            return f"{p.stage}: step {p.done}/{p.total}{loss}{left}"
+            stage = p.stage if p.stage_number is None else f"stage {p.stage_number}/{p.stage_count}: {p.stage}"
+            return f"{stage}: step {p.done}/{p.total}{loss}{left}"
         return f"{self.label}: {self.log[-1] if self.log else 'starting'}"
 
     # ------------------------------------------------------------------ internals

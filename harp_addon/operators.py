@@ -29,9 +29,31 @@ def _poll_all():
     return POLL_SECONDS if busy else None
 
 
-def _watch():
+def _watch(context):
+    """Poll the jobs from a timer, and listen for Esc in the window (not in background mode,
+    which has neither windows nor modal operators)."""
     if not bpy.app.timers.is_registered(_poll_all):
         bpy.app.timers.register(_poll_all, first_interval=POLL_SECONDS)
+    if context.window is not None:
+        bpy.ops.harp.escape_listener("INVOKE_DEFAULT")
+
+
+class HARP_OT_escape_listener(bpy.types.Operator):
+    """Esc stops the running job as Cancel does (listens while a job runs)"""
+    bl_idname, bl_label = "harp.escape_listener", "Esc cancels the HARP job"
+    bl_options = {"INTERNAL"}
+
+    def invoke(self, context, event):
+        self.scene_name = context.scene.name
+        context.window_manager.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        outcome = actions.key_pressed(self.scene_name, event.type, event.value)
+        if outcome == "cancelled":
+            self.report({"INFO"}, "cancelling (Esc)")
+            return {"FINISHED"}
+        return {"FINISHED"} if outcome == "idle" else {"PASS_THROUGH"}
 
 
 class _Action(bpy.types.Operator):
@@ -71,7 +93,7 @@ class HARP_OT_import(_Action):
                              masks=bpy.path.abspath(settings.masks) if settings.masks else None, side=settings.side,
                              fov=math.degrees(settings.fov), python=actions.engine_python(context))
         settings.sequence = sequence
-        _watch()
+        _watch(context)
         return f"importing into {sequence}"
 
 
@@ -87,7 +109,7 @@ class HARP_OT_fit(_Action):
                           preset=settings.preset, shadows=settings.shadows, init=settings.init,
                           python=actions.engine_python(context), resume=self.resume)
         settings.avatar = avatar
-        _watch()
+        _watch(context)
         return f"{'resuming' if self.resume else 'fitting'} into {avatar}"
 
 
@@ -122,7 +144,7 @@ class HARP_OT_export(_Action):
         return "wrote " + ", ".join(str(path) for path in written)
 
 
-CLASSES = (HARP_OT_import, HARP_OT_fit, HARP_OT_cancel, HARP_OT_bind, HARP_OT_export)
+CLASSES = (HARP_OT_escape_listener, HARP_OT_import, HARP_OT_fit, HARP_OT_cancel, HARP_OT_bind, HARP_OT_export)
 
 
 def register():

@@ -34,6 +34,9 @@ def test_worker_round_trip_progress_cancel_resume_bind(exact_clip, tmp_path, emp
     while running.job.active and not progress:
         progress += [event for event in running.job.poll() if event.kind == "progress"]
         time.sleep(0.05)    # as Blender's timer would: a busy loop here starves the worker
+    first = progress[0]
+    assert (first.stage_number, first.stage_count) == (1, 4)    # the alignment, then three stages
+    assert running.job.status_line().startswith(f"stage 1/4: {first.stage}: step ")
     actions.cancel("test")
     assert running.job.wait(timeout=240) == "cancelled", list(running.job.errors)
     assert progress and (out / "checkpoint.pt").is_file() and not (out / av.AVATAR_FILE).exists()
@@ -47,6 +50,8 @@ def test_worker_round_trip_progress_cancel_resume_bind(exact_clip, tmp_path, emp
     assert resumed.job.state == "finished", list(resumed.job.errors)
     done = [event.done for event in events]
     assert done == sorted(done) and events[-1].done == events[-1].total
+    numbers = [event.stage_number for event in events]
+    assert numbers == sorted(numbers) and numbers[-1] == 4 and len(set(numbers)) >= 3
     assert any("resum" in line or "fitting" in line for line in resumed.job.log)
     bound = actions.bind(out)
     assert len(bound.frames) == 4
@@ -71,5 +76,23 @@ def test_progress_lines():
     event = jobs.parse_progress_line('{"event": "progress", "stage": "align", "step": 3, "loss": 0.25, "done": 3, '
                                      '"total": 30, "seconds_left": 81.0}\n')
     assert (event.kind, event.stage, event.done, event.total, event.loss) == ("progress", "align", 3, 30, 0.25)
+    assert event.stage_number is None     # lines from before the stage numbers still parse
+    event = jobs.parse_progress_line('{"event": "progress", "stage": "geometry", "step": 3, "loss": 0.25, "done": 3, '
+                                     '"total": 30, "seconds_left": 81.0, "stage_number": 2, "stage_count": 4}')
+    assert (event.stage_number, event.stage_count) == (2, 4)
     assert jobs.parse_progress_line('{"event": "log", "message": "shadows auto"}').message == "shadows auto"
     assert jobs.parse_progress_line("plain text").kind == "log" and jobs.parse_progress_line("  ") is None
+
+
+def test_esc_stops_the_running_job_as_cancel_does():
+    job = jobs.Job([[sys.executable, "-c", "import time; time.sleep(60)"]], "fit").start()
+    actions.JOBS["esc"] = actions.Running(job, "fit", None, "esc")
+    try:
+        assert actions.key_pressed("esc", "A", "PRESS") == "ignored"
+        assert actions.key_pressed("esc", "ESC", "RELEASE") == "ignored" and job.active
+        assert actions.key_pressed("esc", "ESC", "PRESS") == "cancelled"
+        assert job.wait(timeout=60) == "cancelled"
+        assert actions.key_pressed("esc", "ESC", "PRESS") == "idle"      # the listener stops with the job
+    finally:
+        actions.JOBS.pop("esc", None)
+    assert actions.key_pressed("no such scene", "ESC", "PRESS") == "idle"

@@ -128,6 +128,7 @@ def _run(setup: FitSetup, job, out, observers, started):
         clock.observe(observers, "start", problem)
         for index in range(state.stage, len(state.schedule)):
             run = StageRun(problem, state.schedule[index], state, generator, optimiser_state)
+            reporter.enter_stage(*_stage_number(state.schedule, index))
             if validator is not None and optimiser_state is None:   # a stage from its start
                 validator.new_stage()
             optimiser_state = None
@@ -155,6 +156,12 @@ def _run(setup: FitSetup, job, out, observers, started):
         _after_the_stages(problem, state, reporter, lambda: saver.save(state, None, generator), validator)
         clock.observe(observers, "end", problem)
     return write_outputs(out, problem, state, held_out, estimate=estimate.report(), validation_frames=validation)
+
+
+def _stage_number(schedule, index):
+    """(number from 1, count) of stage `index` among the schedule's stages that have steps."""
+    planned = [i for i, stage in enumerate(schedule) if stage.steps > 0]
+    return sum(i <= index for i in planned) or 1, max(1, len(planned))
 
 
 def _validate(validator, state, run, index, estimate, reporter):

@@ -23,11 +23,16 @@ class Progress:
 
     def __init__(self, kind, total):
         self.kind, self.total, self.done, self.start = kind, total, 0, time.time()
+        self.stage_number = self.stage_count = None
         self.bar = None
         if kind == "bar":
             from tqdm import tqdm
             self.bar = tqdm(total=total, unit="step", dynamic_ncols=True,
                             bar_format="{desc}{percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")
+
+    def enter_stage(self, number, count):
+        """The steps that follow are stage `number` (from 1) of `count`."""
+        self.stage_number, self.stage_count = number, count
 
     def update(self, stage, step, loss, seconds_left=None, steps_left=None):
         """One step done; `steps_left` (when given) replaces the total (a budget re-plans)."""
@@ -39,13 +44,15 @@ class Progress:
         elapsed = time.time() - self.start
         left = seconds_left if seconds_left is not None else elapsed / self.done * (self.total - self.done)
         if self.bar is not None:
-            self.bar.set_description(stage)
+            self.bar.set_description(stage if self.stage_number is None else
+                                     f"stage {self.stage_number}/{self.stage_count} {stage}")
             self.bar.set_postfix_str(f"{_clock(left)} left, loss {loss:.4f}", refresh=False)
             self.bar.update(1)
         elif self.kind == "jsonl" and (self.done % 10 == 0 or self.done == self.total):
             finite = loss if math.isfinite(loss) else None
             print(json.dumps({"event": "progress", "stage": stage, "step": step, "loss": finite, "done": self.done,
-                              "total": self.total, "seconds_left": round(left, 1)}), flush=True)
+                              "total": self.total, "seconds_left": round(left, 1), "stage_number": self.stage_number,
+                              "stage_count": self.stage_count}), flush=True)
 
     def extend(self, steps):
         """More steps than planned (a stage that found it needs them)."""
