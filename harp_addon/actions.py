@@ -6,15 +6,18 @@ modal operators do not run in background mode.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
 
 import bpy
+import numpy as np
 
 from . import engine
 from .core import avatar_folder, sequence_folder
 from .export import ExportError, export_fbx, export_gltf, save_blend
 from .jobs import Job
-from .scene import BindError, bind_avatar, footage_camera
+from .retarget import RetargetError, bone_map, retarget_motion
+from .scene import FIRST_FRAME, BindError, bind_avatar, footage_camera
 
 INIT_FILE = "init.npz"
 
@@ -167,15 +170,43 @@ def export(bound, gltf=None, blend=None, pack=False, fbx=None):
     return written
 
 
+@dataclasses.dataclass
+class Bound:
+    """What the export and retarget buttons need of a bound avatar found in the scene (its folder
+    is read only when asked: an export needs the objects alone)."""
+    armature: bpy.types.Object
+    mesh: bpy.types.Object
+    folder: Path                   # its avatar folder
+
+    @functools.cached_property
+    def files(self):
+        return avatar_folder.read_avatar_folder(self.folder)
+
+    @property
+    def frames(self):
+        return FIRST_FRAME + np.asarray(self.files.poses.frames, dtype=np.int64)
+
+
 def last_bound(scene):
-    """The BoundAvatar-like handles of the newest HARP collection in the scene, for the export
-    buttons (objects found by their roles, not their names)."""
+    """The newest HARP collection in the scene (objects found by their roles, not their names)."""
     for collection in reversed(list(scene.collection.children)):
         armatures = [o for o in collection.objects if o.type == "ARMATURE"]
         meshes = [o for o in collection.objects if o.type == "MESH" and o.parent in armatures]
         if armatures and meshes and collection.get("harp_avatar"):
-            return dataclasses.make_dataclass("Bound", ["armature", "mesh"])(armatures[0], meshes[0])
+            return Bound(armatures[0], meshes[0], Path(collection["harp_avatar"]))
     raise ActionError("no bound HARP avatar in this scene: bind one first")
+
+
+def retarget(scene, target, kind="mixamo", map_file="", place="follow"):
+    """Put the newest bound avatar's motion onto the armature `target` (retarget.py), its bones
+    named by the rig kind's map or by the bone map file (`kind` "file"); one ActionError line on
+    failure."""
+    bound = last_bound(scene)
+    try:
+        mapping = bone_map(map_file if kind == "file" else kind, bound.files.rig.side)
+        return retarget_motion(bound, target, mapping, place, scene)
+    except (RetargetError, avatar_folder.AvatarFolderError, OSError) as error:
+        raise ActionError(str(error)) from None
 
 
 def engine_python(context):

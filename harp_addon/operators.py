@@ -133,6 +133,16 @@ class HARP_OT_bind(_Action):
         return f"bound {len(bound.frames)} frames into {bound.collection.name}"
 
 
+class HARP_OT_retarget(_Action):
+    """Put the bound hand's motion onto your armature: keys on its hand bones, nothing else added"""
+    bl_idname, bl_label = "harp.retarget", "Motion onto rig"
+
+    def act(self, context, settings):
+        result = actions.retarget(context.scene, settings.retarget_rig, settings.rig_kind,
+                                  bpy.path.abspath(settings.bone_map_file), settings.retarget_place)
+        return f"keyed {len(result.bones)} bones of {result.armature.name}"
+
+
 class HARP_OT_export(_Action):
     """Export the newest bound hand: glTF binary and FBX (skin, textures and motion) and a .blend"""
     bl_idname, bl_label = "harp.export", "Export"
@@ -144,7 +154,8 @@ class HARP_OT_export(_Action):
         return "wrote " + ", ".join(str(path) for path in written)
 
 
-CLASSES = (HARP_OT_escape_listener, HARP_OT_import, HARP_OT_fit, HARP_OT_cancel, HARP_OT_bind, HARP_OT_export)
+CLASSES = (HARP_OT_escape_listener, HARP_OT_import, HARP_OT_fit, HARP_OT_cancel, HARP_OT_bind, HARP_OT_retarget,
+           HARP_OT_export)
 
 
 def register():

@@ -49,6 +49,14 @@ class HARP_PT_panel(bpy.types.Panel):
         box.prop(settings, "pack_on_bind")
         box.prop(settings, "smooth_frames")
         box.operator("harp.bind", icon="LINKED")
+        column = box.box().column()
+        column.label(text="Onto your rig")
+        column.prop(settings, "retarget_rig")
+        column.prop(settings, "rig_kind")
+        if settings.rig_kind == "file":
+            column.prop(settings, "bone_map_file")
+        column.prop(settings, "retarget_place")
+        column.operator("harp.retarget", icon="ARMATURE_DATA")
 
         box = layout.box()
         box.label(text="4. Export", icon="EXPORT")

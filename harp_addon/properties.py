@@ -11,6 +11,11 @@ PRESETS = [("fast", "Fast", "About 6 min for a 150-frame clip on one CPU core"),
 SHADOWS = [("auto", "Auto", "Decided from the fitted light: on under a dominant light"),
            ("on", "On", "Self-shadowing always"), ("off", "Off", "No self-shadowing (soft, even light)")]
 SIDES = [("auto", "Auto", "Tell from the footage (MediaPipe)"), ("right", "Right", ""), ("left", "Left", "")]
+RIG_KINDS = [("mixamo", "Mixamo", "Bones named mixamorig:RightHandIndex1 ..."),
+             ("rigify", "Rigify", "A generated Rigify rig's FK controls: hand_fk.R, f_index.01.R ..."),
+             ("file", "Bone map file", "A JSON file: {our joint name: your bone name}")]
+PLACES = [("follow", "Follow the footage", "The hand goes where the capture puts it, every frame"),
+          ("keep", "Keep the rig's place", "Only the hand's own rotations; your rig keeps its placement")]
 INITS = [("mediapipe", "MediaPipe", "Detect the hand's keypoints in every frame (offline)"),
          ("gt-noise", "Ground truth + noise", "Synthetic clips only: the true pose with noise")]
 
@@ -33,6 +38,13 @@ class HarpSettings(bpy.types.PropertyGroup):
                                description="Smooth the motion over this many frames (odd, at least 5; 0: the fit's "
                                            "keys as they are). 7-9 frames took out 70-77% of the jitter on "
                                            "synthetic clips and brought the joints closer to the truth")
+    retarget_rig: PointerProperty(name="Rig", type=bpy.types.Object, poll=lambda self, obj: obj.type == "ARMATURE",
+                                  description="Your armature: the fitted motion goes onto its hand bones as keys")
+    rig_kind: EnumProperty(name="Bones", items=RIG_KINDS, default="mixamo")
+    bone_map_file: StringProperty(name="Bone map", subtype="FILE_PATH",
+                                  description="JSON: {\"wrist\": \"hand.R\", \"index1\": ...}; joints left out stay as "
+                                              "they are")
+    retarget_place: EnumProperty(name="Placement", items=PLACES, default="follow")
     gltf: StringProperty(name="glTF", subtype="FILE_PATH", default="//hand.glb")
     fbx: StringProperty(name="FBX", subtype="FILE_PATH", default="",
                         description="Also export the hand as FBX (skin, embedded textures, motion); empty: no FBX")

@@ -20,6 +20,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from harp_addon import actions  # noqa: E402
+from harp_addon.core import rotations  # noqa: E402
 from harp_addon.rig import bone_names  # noqa: E402
 from harp_addon.scene import CAPTURE_TO_WORLD, FIRST_FRAME, bind_avatar  # noqa: E402
 from pipeline.formats import avatar_folder as av  # noqa: E402
@@ -286,8 +287,9 @@ def test_extension_builds_validates_installs_and_unregisters_without_trace(exten
 
 
 def test_the_installed_buttons_bind_and_export_and_fail_in_one_line(extension_zip, arm_avatar, tmp_path):
-    """Bind and Export through the installed extension's operators (Export packs the images by
-    default); an unexpected exception in Bind is one reported line and leaves no datablock."""
+    """Bind, Motion onto rig and Export through the installed extension's operators (Export packs
+    the images by default); an unexpected exception in Bind is one reported line and leaves no
+    datablock."""
     out = run_installed(extension_zip, tmp_path, f"""
         import json
         settings = bpy.context.scene.harp
@@ -296,6 +298,20 @@ def test_the_installed_buttons_bind_and_export_and_fail_in_one_line(extension_zi
         settings.gltf, settings.blend = {str(tmp_path / "hand.glb")!r}, {str(tmp_path / "hand.blend")!r}
         assert bpy.ops.harp.export() == {{"FINISHED"}}
         session_packed = [image.name for image in bpy.data.images if image.packed_file]
+        try:
+            bpy.ops.harp.retarget()
+            no_rig = None
+        except RuntimeError as error:
+            no_rig = str(error)
+        ours = next(o for o in bpy.data.objects if o.type == "ARMATURE")
+        artist = ours.copy()
+        artist.data = ours.data.copy()
+        artist.animation_data_clear()
+        bpy.context.scene.collection.objects.link(artist)
+        for joint, bone in sys.modules[name + ".retarget"].bone_map("mixamo", "right").items():
+            artist.data.bones[joint + ".R"].name = bone
+        settings.retarget_rig = artist
+        retargeted = bpy.ops.harp.retarget() == {{"FINISHED"}} and artist.animation_data.action is not None
 
         def broken(*args):
             raise KeyError("keyframes broke")
@@ -313,7 +329,8 @@ def test_the_installed_buttons_bind_and_export_and_fail_in_one_line(extension_zi
         images = {{image.name: image.packed_file is not None for image in bpy.data.images
                   if image.source in ("FILE", "SEQUENCE")}}
         print("RESULT", json.dumps(dict(session_packed=session_packed, reported=reported,
-                                        unchanged=before == after, images=images)))
+                                        unchanged=before == after, images=images, no_rig=no_rig,
+                                        retargeted=retargeted)))
         """)
     result = json.loads(out.split("RESULT", 1)[1])
     assert (tmp_path / "hand.glb").stat().st_size > 10000
@@ -322,6 +339,7 @@ def test_the_installed_buttons_bind_and_export_and_fail_in_one_line(extension_zi
     assert result["reported"].strip() == ("Error: Bind avatar failed: KeyError: 'keyframes broke' "
                                           "(details in the system console)")
     assert result["unchanged"]
+    assert result["no_rig"].strip() == "Error: pick an armature to put the motion on" and result["retargeted"]
 
 
 def test_the_addon_binds_without_torch(arm_avatar, tmp_path):
@@ -342,3 +360,146 @@ def test_the_addon_binds_without_torch(arm_avatar, tmp_path):
     result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300,
                             cwd=ROOT)
     assert result.returncode == 0 and "bound 4" in result.stdout, result.stderr[-2000:]
+
+
+def mixamo_style_rig(bound, rng, scene):
+    """An artist's rig with Mixamo's bone names, built around the bound avatar's rest pose as a
+    rig made for that hand would be, but nothing like ours in its details: in centimetres with the
+    object scaled by 0.01 (as a Mixamo import), turned and moved in the world, every bone rolled
+    and tilted at random, an upper-arm bone above the forearm and a tip bone after each finger.
+    Returns (armature object, Q: our armature space -> theirs, 4 x 4)."""
+    from mathutils import Matrix
+
+    from harp_addon.retarget import bone_map
+
+    data = bound.files.rig
+    ours = dict(zip(data.joint_names, bone_names(data)))
+    names = bone_map("mixamo", data.side)
+    turn = rotations.axis_angle_to_matrix(rng.normal(0, 1.0, 3))
+    Q = np.eye(4)
+    Q[:3, :3], Q[:3, 3] = 100.0 * turn, rng.normal(0, 20.0, 3)
+    armature_data = bpy.data.armatures.new("artist")
+    armature = bpy.data.objects.new("artist", armature_data)
+    scene.collection.objects.link(armature)
+    world = np.eye(4)
+    world[:3, :3] = 0.01 * rotations.axis_angle_to_matrix(np.array([np.pi / 2, 0, 0]))
+    world[:3, 3] = (1.0, -2.0, 0.5)
+    armature.matrix_world = Matrix(world.tolist())
+    bpy.context.view_layer.objects.active = armature
+    bpy.ops.object.mode_set(mode="EDIT")
+    bones = {}
+    shoulder = armature_data.edit_bones.new("mixamorig:RightArm" if data.side == "right" else "mixamorig:LeftArm")
+    shoulder.head, shoulder.tail = (0.0, 0.0, 0.0), (0.0, 10.0, 0.0)
+    for joint, name in names.items():
+        rest = np.array(bound.armature.data.bones[ours[joint]].matrix_local)
+        frame = turn @ rest[:3, :3] @ rotations.axis_angle_to_matrix(rng.normal(0, 0.6, 3))
+        matrix = np.eye(4)
+        matrix[:3, :3], matrix[:3, 3] = frame, (Q @ np.append(rest[:3, 3], 1.0))[:3]
+        bone = armature_data.edit_bones.new(name)
+        bone.head, bone.tail = (0.0, 0.0, 0.0), (0.0, 2.0, 0.0)
+        bone.matrix = Matrix(matrix.tolist())
+        bones[joint] = bone
+    for j, joint in enumerate(data.joint_names):
+        parent = data.parents[j]
+        if joint in bones:
+            bones[joint].parent = bones[data.joint_names[parent]] if parent >= 0 else shoulder
+            if joint.endswith("3"):
+                tip = armature_data.edit_bones.new(names[joint][:-1] + "4")
+                tip.head = bones[joint].tail
+                tip.tail = bones[joint].tail + 0.3 * (bones[joint].tail - bones[joint].head)
+                tip.parent = bones[joint]
+    bpy.ops.object.mode_set(mode="OBJECT")
+    return armature, Q
+
+
+def carried_points(armature, bone_name, points):
+    """(N, 3) world positions of `points` (N, 3, the bone's rest, in its armature's space) carried
+    by the bone's posed transform."""
+    pose_bone = armature.pose.bones[bone_name]
+    transform = np.array(armature.matrix_world) @ np.array(pose_bone.matrix) @ np.linalg.inv(
+        np.array(pose_bone.bone.matrix_local))
+    return points @ transform[:3, :3].T + transform[:3, 3]
+
+
+@pytest.mark.parametrize("prepared_name", ["prepared_avatar", "prepared_left_avatar"])
+def test_the_motion_goes_onto_a_mixamo_style_rig(prepared_name, request, empty_scene):
+    from harp_addon.retarget import bone_map, retarget_motion
+
+    prepared = request.getfixturevalue(prepared_name)
+    bound = bind_avatar(prepared.avatar)
+    data = bound.files.rig
+    ours = dict(zip(data.joint_names, bone_names(data)))
+    artist, Q = mixamo_style_rig(bound, np.random.default_rng(3), empty_scene)
+    before = ({bone.name: tuple(bone.head_local) for bone in artist.data.bones},
+              sum(len(bone.constraints) for bone in artist.pose.bones), len(artist.modifiers))
+    mapping = bone_map("mixamo", data.side)
+    result = retarget_motion(bound, artist, mapping)
+    assert result.root == "forearm" and set(result.bones) == set(mapping)
+    after = ({bone.name: tuple(bone.head_local) for bone in artist.data.bones},
+             sum(len(bone.constraints) for bone in artist.pose.bones), len(artist.modifiers))
+    assert after == before                                    # nothing added to their rig but keys
+    keyed = {curve.data_path.split('"')[1] for curve in action_fcurves(result.action)}
+    assert keyed == set(mapping.values())
+    tips = {finger: np.nonzero(np.array(data.keypoint_joints[:21]) == data.joint_names.index(f"{finger}3"))[0]
+            for finger in ("thumb", "index", "middle", "ring", "pinky")}
+    errors = []
+    for frame in bound.frames:
+        empty_scene.frame_set(int(frame))
+        for finger, keypoints in tips.items():
+            rest = np.array(data.keypoints)[keypoints]     # our rig's rest fingertip (its shape is baked in)
+            ours_world = carried_points(bound.armature, ours[f"{finger}3"], rest)
+            theirs_rest = rest @ Q[:3, :3].T + Q[:3, 3]
+            theirs_world = carried_points(artist, mapping[f"{finger}3"], theirs_rest)
+            errors.append(np.linalg.norm(theirs_world - ours_world, axis=1).max() * 1000)
+    print(f"{data.side} hand on a Mixamo-style rig: fingertips {np.mean(errors):.2e} mm mean, "
+          f"{np.max(errors):.2e} mm worst")
+    assert np.max(errors) < 0.01
+
+
+def test_kept_placement_moves_only_the_hand_within_its_rig(prepared_avatar, empty_scene):
+    from harp_addon.retarget import bone_map, retarget_motion
+
+    bound = bind_avatar(prepared_avatar.avatar)
+    data = bound.files.rig
+    ours = dict(zip(data.joint_names, bone_names(data)))
+    artist, Q = mixamo_style_rig(bound, np.random.default_rng(4), empty_scene)
+    mapping = bone_map("mixamo", data.side)
+    result = retarget_motion(bound, artist, mapping, place="keep")
+    paths = {curve.data_path for curve in action_fcurves(result.action)}
+    assert not any(path.endswith("location") for path in paths)
+    tips = [data.keypoint_joints[k] for k in (4, 8, 12, 16, 20)]       # the five fingertips' joints
+    worst = 0.0
+    for frame in bound.frames:
+        empty_scene.frame_set(int(frame))
+        ours_points, theirs_points = [], []
+        for keypoint, joint in zip((4, 8, 12, 16, 20), tips):
+            rest = np.array(data.keypoints)[[keypoint]]
+            ours_points.append(carried_points(bound.armature, ours[data.joint_names[joint]], rest)[0])
+            theirs_points.append(carried_points(artist, mapping[data.joint_names[joint]],
+                                                rest @ Q[:3, :3].T + Q[:3, 3])[0])
+        # the hand's shape at this frame: the distances between its fingertips, in metres in both rigs
+        distances = [np.linalg.norm(np.array(p)[:, None] - np.array(p)[None], axis=-1)
+                     for p in (ours_points, theirs_points)]
+        worst = max(worst, np.abs(distances[0] - distances[1]).max() * 1000)
+    assert worst < 0.01
+
+
+def test_a_rig_that_cannot_take_the_motion_is_one_line(prepared_avatar, empty_scene, tmp_path):
+    from harp_addon.retarget import RetargetError, bone_map, retarget_motion
+
+    bound = bind_avatar(prepared_avatar.avatar)
+    artist, _ = mixamo_style_rig(bound, np.random.default_rng(5), empty_scene)
+    with pytest.raises(RetargetError, match="has no bone 'mixamorig:LeftForeArm' \\(nor 16 more"):
+        retarget_motion(bound, artist, bone_map("mixamo", "left"))
+    with pytest.raises(RetargetError, match="the avatar's own armature"):
+        retarget_motion(bound, bound.armature, bone_map("mixamo", "right"))
+    with pytest.raises(RetargetError, match="pick an armature"):
+        retarget_motion(bound, bound.mesh, bone_map("mixamo", "right"))
+    with pytest.raises(RetargetError, match="joints this avatar does not have: elbow"):
+        retarget_motion(bound, artist, {"elbow": "mixamorig:RightArm"})
+    (tmp_path / "map.json").write_text("[1, 2]")
+    with pytest.raises(RetargetError, match="not a JSON object"):
+        bone_map(str(tmp_path / "map.json"))
+    with pytest.raises(RetargetError, match="unknown rig kind"):
+        bone_map("auto-rig-pro")
+    assert artist.animation_data is None or artist.animation_data.action is None   # nothing left behind

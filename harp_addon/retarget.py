@@ -1,0 +1,225 @@
+"""The fitted motion on the artist's own armature (bpy): keys on their hand bones, nothing else
+added to their rig.
+
+A bone map names, for each joint of ours (`wrist`, `index1`, ... and `forearm` in arm mode),
+the artist's bone that plays it. BONE_MAPS holds one per rig kind (Mixamo's `mixamorig:` names;
+a generated Rigify rig's FK controls), for either side; `bone_map()` gives one, a dict or a JSON
+file gives any other (unmapped joints are left alone).
+
+Each mapped bone takes our joint's rotation relative to its rest, expressed in the artist's
+bone's own rest frame. The two rigs' rest poses are first put in register by one rotation G,
+the one that turns our hand's rest frame into theirs (each hand's frame from its bones' heads:
+wrist -> middle finger, and the palm's normal from the index and pinky knuckles; G = identity
+when the map lacks those bones). With O = (G L_ours)^-1 L_theirs (L: a bone's rest frame in its
+armature), their local rotation is O^-1 q O. Where both rigs share one rest pose, however placed,
+rolled or scaled (an artist's rig built around the avatar), their bones then follow ours exactly;
+otherwise their pose is their own rest pose bent as ours bends.
+
+The root of the mapped chain (the first mapped bone whose parent is not mapped: the forearm or
+the hand) is placed by `place`:
+    "follow"   it goes where the capture puts our root, every frame (the hand follows the
+               footage; their own parent bones, animated or not, are accounted for)
+    "keep"     it keeps their rig's placement and takes only its local rotation
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import bpy
+import numpy as np
+from mathutils import Matrix
+
+from .core import rotations
+from .rig import bone_names
+
+PLACES = ("follow", "keep")
+FINGERS = ("index", "middle", "ring", "pinky", "thumb")
+
+
+class RetargetError(ValueError):
+    """The motion cannot go onto that armature (one-line message)."""
+
+
+def _mixamo(side):
+    prefix = f"mixamorig:{'Right' if side == 'right' else 'Left'}"
+    names = {"forearm": f"{prefix}ForeArm", "wrist": f"{prefix}Hand"}
+    for finger in FINGERS:
+        for number in (1, 2, 3):
+            names[f"{finger}{number}"] = f"{prefix}Hand{finger.capitalize()}{number}"
+    return names
+
+
+def _rigify(side):
+    suffix = ".R" if side == "right" else ".L"
+    names = {"forearm": f"forearm_fk{suffix}", "wrist": f"hand_fk{suffix}"}
+    for finger in FINGERS:
+        stem = "thumb" if finger == "thumb" else f"f_{finger}"
+        for number in (1, 2, 3):
+            names[f"{finger}{number}"] = f"{stem}.0{number}{suffix}"
+    return names
+
+
+BONE_MAPS = {"mixamo": _mixamo, "rigify": _rigify}
+
+
+def bone_map(kind, side="right"):
+    """{our joint name: their bone name} for a rig kind of BONE_MAPS, or read from a JSON file
+    (`kind` a path) holding such a dict."""
+    if kind in BONE_MAPS:
+        return BONE_MAPS[kind](side)
+    path = Path(kind)
+    if not path.is_file():
+        raise RetargetError(f"unknown rig kind {kind!r}: choose {', '.join(BONE_MAPS)} or give a bone map file")
+    try:
+        mapping = json.loads(path.read_text())
+    except (OSError, ValueError) as error:
+        raise RetargetError(f"cannot read the bone map {path}: {error}") from None
+    if not isinstance(mapping, dict) or not all(isinstance(v, str) for v in mapping.values()):
+        raise RetargetError(f"the bone map {path} is not a JSON object of joint name -> bone name")
+    return mapping
+
+
+@dataclasses.dataclass
+class Retargeted:
+    armature: bpy.types.Object       # the artist's armature
+    action: bpy.types.Action         # the keys put on it
+    bones: dict                      # {our joint: their bone} keyed
+    root: str                        # our joint at the root of the mapped chain
+
+
+def retarget_motion(bound, target, mapping, place="follow", scene=None) -> Retargeted:
+    """Key the motion of `bound` (a scene.BoundAvatar) onto the armature object `target` at
+    every bound frame, bone by bone as `mapping` ({our joint name: their bone name}) says.
+    Nothing but an action with those keys is added to `target`."""
+    scene = scene or bpy.context.scene
+    if target is None or target.type != "ARMATURE":
+        raise RetargetError("pick an armature to put the motion on")
+    if target == bound.armature:
+        raise RetargetError("that is the avatar's own armature: pick the rig the motion should go onto")
+    if place not in PLACES:
+        raise RetargetError(f"unknown placement {place!r}: choose {' or '.join(PLACES)}")
+    data = bound.files.rig
+    ours = dict(zip(data.joint_names, bone_names(data)))
+    unknown = sorted(set(mapping) - set(ours))
+    if unknown:
+        raise RetargetError(f"the bone map names joints this avatar does not have: {', '.join(unknown)}")
+    missing = sorted(name for name in mapping.values() if name not in target.data.bones)
+    if missing:
+        raise RetargetError(f"{target.name} has no bone {missing[0]!r}"
+                            + (f" (nor {len(missing) - 1} more of the map's)" if len(missing) > 1 else ""))
+    if not mapping:
+        raise RetargetError("the bone map is empty")
+    order = [j for j, name in enumerate(data.joint_names) if name in mapping]
+    order.sort(key=lambda j: _depth(data.parents, j))
+    root = next(j for j in order if data.parents[j] < 0 or data.joint_names[data.parents[j]] not in mapping)
+    register = _hand_register(bound.armature, target, {name: (ours[name], theirs) for name, theirs in mapping.items()})
+    offsets = {j: _rest_offset(bound.armature.data.bones[ours[data.joint_names[j]]],
+                               target.data.bones[mapping[data.joint_names[j]]], register) for j in order}
+
+    action = bpy.data.actions.new(f"{target.name} HARP motion")
+    target.animation_data_create()
+    previous_action = target.animation_data.action
+    target.animation_data.action = action
+    previous_frame = scene.frame_current
+    rotation_modes = {}
+    try:
+        for j in order:
+            pose_bone = target.pose.bones[mapping[data.joint_names[j]]]
+            rotation_modes[pose_bone.name] = pose_bone.rotation_mode
+            pose_bone.rotation_mode = "QUATERNION"
+        last = {}
+        for frame in bound.frames:
+            scene.frame_set(int(frame))
+            for j in order:
+                name = data.joint_names[j]
+                theirs = target.pose.bones[mapping[name]]
+                our_bone = bound.armature.pose.bones[ours[name]]
+                if j == root and place == "follow":
+                    _place_root(theirs, target, our_bone, bound.armature, offsets[j])
+                    theirs.keyframe_insert("location", frame=int(frame))
+                else:
+                    local = np.array(our_bone.matrix_basis)[:3, :3]
+                    offset = offsets[j]
+                    theirs.rotation_quaternion = Matrix((offset.T @ local @ offset).tolist()).to_quaternion()
+                quaternion = np.array(theirs.rotation_quaternion)
+                if name in last and quaternion @ last[name] < 0:       # the short way round between keys
+                    quaternion = -quaternion
+                    theirs.rotation_quaternion = quaternion.tolist()
+                last[name] = quaternion
+                theirs.keyframe_insert("rotation_quaternion", frame=int(frame))
+            bpy.context.view_layer.update()
+    except BaseException:
+        target.animation_data.action = previous_action
+        bpy.data.actions.remove(action)
+        for name, mode in rotation_modes.items():
+            target.pose.bones[name].rotation_mode = mode
+        raise
+    finally:
+        scene.frame_set(previous_frame)
+    return Retargeted(target, action, {data.joint_names[j]: mapping[data.joint_names[j]] for j in order},
+                      data.joint_names[root])
+
+
+def _depth(parents, joint):
+    depth = 0
+    while parents[joint] >= 0:
+        joint, depth = parents[joint], depth + 1
+    return depth
+
+
+def _rest_offset(our_bone, their_bone, register):
+    """(3, 3) their bone's rest frame seen in ours, once our rest is turned by `register` (G)."""
+    ours = register @ _orthonormal(np.array(our_bone.matrix_local)[:3, :3])
+    theirs = _orthonormal(np.array(their_bone.matrix_local)[:3, :3])
+    return _orthonormal(ours.T @ theirs)
+
+
+def _hand_register(our_armature, their_armature, pairs):
+    """(3, 3) G: our armature's directions -> theirs, turning our rest hand onto theirs;
+    `pairs` {joint: (our bone, their bone)}. The identity when the map lacks the wrist, the index,
+    middle or pinky knuckle."""
+    needed = ("wrist", "index1", "middle1", "pinky1")
+    if not all(name in pairs for name in needed):
+        return np.eye(3)
+    frames = []
+    for side, armature in enumerate((our_armature, their_armature)):
+        heads = {name: np.array(armature.data.bones[pairs[name][side]].head_local) for name in needed}
+        frames.append(_hand_frame(heads))
+    if any(frame is None for frame in frames):
+        return np.eye(3)
+    return frames[1] @ frames[0].T
+
+
+def _hand_frame(heads):
+    """(3, 3) columns: across the palm, wrist -> middle knuckle, the palm's normal; None when
+    the knuckles are in a line."""
+    along = heads["middle1"] - heads["wrist"]
+    normal = np.cross(heads["index1"] - heads["wrist"], heads["pinky1"] - heads["wrist"])
+    along_norm, normal_norm = np.linalg.norm(along), np.linalg.norm(normal)
+    if along_norm < 1e-9 or normal_norm < 1e-9:
+        return None
+    y = along / along_norm
+    z = normal - (normal @ y) * y
+    if np.linalg.norm(z) < 1e-9:
+        return None
+    z /= np.linalg.norm(z)
+    return np.stack([np.cross(y, z), y, z], axis=1)
+
+
+def _orthonormal(matrix):
+    u, _, vt = np.linalg.svd(matrix)
+    return u @ vt
+
+
+def _place_root(theirs, target, our_bone, our_armature, offset):
+    """Pose their root bone so that its world frame is ours carried by the offset, its head at
+    our bone's head: their own parents' pose at this frame is accounted for by pose_bone.matrix."""
+    our_world = np.array(our_armature.matrix_world) @ np.array(our_bone.matrix)
+    wanted = our_world.copy()
+    wanted[:3, :3] = _orthonormal(our_world[:3, :3]) @ offset
+    armature_space = np.linalg.inv(np.array(target.matrix_world)) @ wanted
+    armature_space[:3, :3] = _orthonormal(armature_space[:3, :3])
+    theirs.matrix = Matrix(armature_space.tolist())
+    bpy.context.view_layer.update()
