@@ -12,7 +12,8 @@ SHADOWS = [("auto", "Auto", "Decided from the fitted light: on under a dominant 
            ("on", "On", "Self-shadowing always"), ("off", "Off", "No self-shadowing (soft, even light)")]
 SIDES = [("auto", "Auto", "Tell from the footage (MediaPipe)"), ("right", "Right", ""), ("left", "Left", "")]
 RIG_KINDS = [("mixamo", "Mixamo", "Bones named mixamorig:RightHandIndex1 ..."),
-             ("rigify", "Rigify", "A generated Rigify rig's FK controls: hand_fk.R, f_index.01.R ..."),
+             ("rigify", "Rigify", "A generated Rigify rig: the hand's IK control hand_ik.R, the fingers' FK controls "
+                                  "f_index.01.R ..."),
              ("file", "Bone map file", "A JSON file: {our joint name: your bone name}")]
 PLACES = [("follow", "Follow the footage", "The hand goes where the capture puts it, every frame"),
           ("keep", "Keep the rig's place", "Only the hand's own rotations; your rig keeps its placement")]

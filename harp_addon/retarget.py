@@ -3,7 +3,7 @@ added to their rig.
 
 A bone map names, for each joint of ours (`wrist`, `index1`, ... and `forearm` in arm mode),
 the artist's bone that plays it. BONE_MAPS holds one per rig kind (Mixamo's `mixamorig:` names;
-a generated Rigify rig's FK controls), for either side; `bone_map()` gives one, a dict or a JSON
+a generated Rigify rig's hand IK control and finger FK controls), for either side; `bone_map()` gives one, a dict or a JSON
 file gives any other (unmapped joints are left alone).
 
 Each mapped bone takes our joint's rotation relative to its rest, expressed in the artist's
@@ -52,8 +52,10 @@ def _mixamo(side):
 
 
 def _rigify(side):
+    """A generated Rigify rig: the hand's IK control (the arm is in IK by default: its chain bends
+    to reach the hand) and the fingers' FK controls."""
     suffix = ".R" if side == "right" else ".L"
-    names = {"forearm": f"forearm_fk{suffix}", "wrist": f"hand_fk{suffix}"}
+    names = {"wrist": f"hand_ik{suffix}"}
     for finger in FINGERS:
         stem = "thumb" if finger == "thumb" else f"f_{finger}"
         for number in (1, 2, 3):

@@ -503,3 +503,28 @@ def test_a_rig_that_cannot_take_the_motion_is_one_line(prepared_avatar, empty_sc
     with pytest.raises(RetargetError, match="unknown rig kind"):
         bone_map("auto-rig-pro")
     assert artist.animation_data is None or artist.animation_data.action is None   # nothing left behind
+
+
+def test_the_motion_goes_onto_a_generated_rigify_rig(prepared_avatar, empty_scene):
+    from harp_addon.retarget import bone_map, retarget_motion
+    from rigify_fixture import fitted_rigify_rig
+
+    bound = bind_avatar(prepared_avatar.avatar)
+    data = bound.files.rig
+    ours = dict(zip(data.joint_names, bone_names(data)))
+    rig = fitted_rigify_rig(bound)
+    bones_before = len(rig.data.bones)
+    result = retarget_motion(bound, rig, bone_map("rigify", "right"))
+    assert result.root == "wrist" and len(rig.data.bones) == bones_before
+    assert {curve.data_path.split('"')[1] for curve in action_fcurves(result.action)} == set(result.bones.values())
+    errors = []
+    for frame in bound.frames:
+        empty_scene.frame_set(int(frame))
+        for finger, stem, tip in (("index", "f_index", 8), ("middle", "f_middle", 12), ("ring", "f_ring", 16),
+                                  ("pinky", "f_pinky", 20), ("thumb", "thumb", 4)):
+            rest = np.array(data.keypoints)[[tip]]
+            ours_world = carried_points(bound.armature, ours[f"{finger}3"], rest)
+            theirs_world = carried_points(rig, f"DEF-{stem}.03.R", rest)    # the bones that deform their mesh
+            errors.append(np.linalg.norm(theirs_world - ours_world) * 1000)
+    print(f"Rigify rig: fingertips {np.mean(errors):.3f} mm mean, {np.max(errors):.3f} mm worst")
+    assert np.mean(errors) < 0.5 and np.max(errors) < 1.0
