@@ -16,7 +16,7 @@ from . import engine
 from .core import avatar_folder, sequence_folder
 from .export import ExportError, export_fbx, export_gltf, save_blend
 from .jobs import Job
-from .retarget import RetargetError, bone_map, retarget_motion
+from .retarget import RetargetError, bone_map, retarget_motion, save_bone_map
 from .scene import FIRST_FRAME, BindError, bind_avatar, footage_camera
 
 INIT_FILE = "init.npz"
@@ -168,6 +168,17 @@ def export(bound, gltf=None, blend=None, pack=False, fbx=None):
     except ExportError as error:
         raise ActionError(str(error)) from None
     return written
+
+
+def write_bone_map(kind, side, path):
+    """The bone map of a rig kind written to `path` as JSON, to be edited and used as a bone map
+    file; one ActionError line on failure."""
+    if not path:
+        raise ActionError("choose a bone map file to write")
+    try:
+        return save_bone_map(bone_map(kind, side), path)
+    except RetargetError as error:
+        raise ActionError(str(error)) from None
 
 
 @dataclasses.dataclass

@@ -143,6 +143,21 @@ class HARP_OT_retarget(_Action):
         return f"keyed {len(result.bones)} bones of {result.armature.name}"
 
 
+class HARP_OT_save_bone_map(_Action):
+    """Write the Mixamo or Rigify bone map to the bone map file, to edit it for your rig"""
+    bl_idname, bl_label = "harp.save_bone_map", "Save bone map"
+
+    def act(self, context, settings):
+        kind = settings.rig_kind if settings.rig_kind != "file" else "mixamo"
+        try:        # the bound hand's side; before a bind, the side chosen for the footage
+            side = actions.last_bound(context.scene).files.rig.side
+        except (actions.ActionError, ValueError, OSError):
+            side = "left" if settings.side == "left" else "right"
+        path = actions.write_bone_map(kind, side, bpy.path.abspath(settings.bone_map_file))
+        settings.rig_kind = "file"
+        return f"wrote {path}: edit it, then Motion onto rig"
+
+
 class HARP_OT_export(_Action):
     """Export the newest bound hand: glTF binary and FBX (skin, textures and motion) and a .blend"""
     bl_idname, bl_label = "harp.export", "Export"
@@ -155,7 +170,7 @@ class HARP_OT_export(_Action):
 
 
 CLASSES = (HARP_OT_escape_listener, HARP_OT_import, HARP_OT_fit, HARP_OT_cancel, HARP_OT_bind, HARP_OT_retarget,
-           HARP_OT_export)
+           HARP_OT_save_bone_map, HARP_OT_export)
 
 
 def register():

@@ -53,8 +53,9 @@ class HARP_PT_panel(bpy.types.Panel):
         column.label(text="Onto your rig")
         column.prop(settings, "retarget_rig")
         column.prop(settings, "rig_kind")
-        if settings.rig_kind == "file":
-            column.prop(settings, "bone_map_file")
+        row = column.row(align=True)
+        row.prop(settings, "bone_map_file")
+        row.operator("harp.save_bone_map", text="", icon="FILE_TICK")
         column.prop(settings, "retarget_place")
         column.operator("harp.retarget", icon="ARMATURE_DATA")
 

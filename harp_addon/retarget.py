@@ -83,6 +83,17 @@ def bone_map(kind, side="right"):
     return mapping
 
 
+def save_bone_map(mapping, path):
+    """Write a bone map as the JSON file bone_map() reads (for the artist to edit); returns the path."""
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(mapping, indent=1) + "\n")
+    except OSError as error:
+        raise RetargetError(f"cannot write the bone map {path}: {error.strerror or error}") from None
+    return path
+
+
 @dataclasses.dataclass
 class Retargeted:
     armature: bpy.types.Object       # the artist's armature

@@ -497,6 +497,10 @@ def test_a_rig_that_cannot_take_the_motion_is_one_line(prepared_avatar, empty_sc
         retarget_motion(bound, bound.mesh, bone_map("mixamo", "right"))
     with pytest.raises(RetargetError, match="joints this avatar does not have: elbow"):
         retarget_motion(bound, artist, {"elbow": "mixamorig:RightArm"})
+    written = actions.write_bone_map("rigify", "left", tmp_path / "maps" / "rigify.json")
+    assert bone_map(str(written)) == bone_map("rigify", "left")          # the file reads back as the map
+    with pytest.raises(actions.ActionError, match="choose a bone map file"):
+        actions.write_bone_map("mixamo", "right", "")
     (tmp_path / "map.json").write_text("[1, 2]")
     with pytest.raises(RetargetError, match="not a JSON object"):
         bone_map(str(tmp_path / "map.json"))

@@ -6,7 +6,8 @@ footage at four fitted frames, beside the fit's own keypoints.
 
 The Rigify rig is made as tests/rigify_fixture.py makes it (the human metarig's arm and hand
 moved onto the avatar's rest joints, generated); the keys go on its hand IK control and finger
-FK controls. docs/blender_rigify.png: the demo clip's `fast` avatar (hand + forearm).
+FK controls. Prints the rig's fingertips against the fit's over every fitted frame (mean and
+worst, mm). docs/blender_rigify.png: the demo clip's `fast` avatar (hand + forearm).
 """
 from __future__ import annotations
 
@@ -26,6 +27,32 @@ from pipeline.preview_render import label  # noqa: E402
 
 FINGERS = ("thumb", "f_index", "f_middle", "f_ring", "f_pinky")
 SCALE = 2          # the footage drawn this many times larger, so the bones show
+
+
+def fingertip_errors(bound, rig, frames, scene):
+    """Rigify's deforming finger bones against our rig at every fitted frame: each fingertip
+    keypoint carried by both (one line, mm)."""
+    from harp_addon.rig import bone_names
+    from harp_addon.scene import FIRST_FRAME
+
+    data = bound.files.rig
+    ours = dict(zip(data.joint_names, bone_names(data)))
+    tips = {"thumb": 4, "index": 8, "middle": 12, "ring": 16, "pinky": 20}
+    errors = []
+    for frame in frames:
+        scene.frame_set(FIRST_FRAME + frame)
+        for finger, keypoint in tips.items():
+            rest = np.array(data.keypoints)[keypoint]
+            stem = "thumb" if finger == "thumb" else f"f_{finger}"
+            points = []
+            for armature, name in ((bound.armature, ours[f"{finger}3"]), (rig, f"DEF-{stem}.03.R")):
+                bone = armature.pose.bones[name]
+                carry = np.array(armature.matrix_world) @ np.array(bone.matrix) @ np.linalg.inv(
+                    np.array(bone.bone.matrix_local))
+                points.append(carry[:3, :3] @ rest + carry[:3, 3])
+            errors.append(np.linalg.norm(points[0] - points[1]) * 1000)
+    return (f"Rigify fingertips against the fit over {len(frames)} frames: {np.mean(errors):.3f} mm mean, "
+            f"{np.max(errors):.3f} mm worst")
 
 
 def main(argv=None):
@@ -55,6 +82,7 @@ def main(argv=None):
         view = world_to_camera_view(scene, bound.camera, Vector(point))
         return int(round(view.x * info.width * SCALE)), int(round((1 - view.y) * info.height * SCALE))
 
+    print(fingertip_errors(bound, rig, frames, scene))
     tiles = []
     for frame in chosen:
         scene.frame_set(FIRST_FRAME + frame)
