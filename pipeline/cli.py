@@ -81,7 +81,8 @@ def _study(args):
     study = run_study(args.dataset, args.out, clips=args.clips, quick=args.quick, preset=args.preset,
                       sections=tuple(args.sections.split(",")), progress=args.progress,
                       runtime_presets=tuple(args.runtime_presets.split(",")), runtime_frames=args.runtime_frames,
-                      stability_scale=args.stability_scale)
+                      stability_scale=args.stability_scale,
+                      stability_kinds=tuple(args.stability_kinds.split(",")) if args.stability_kinds else None)
     print(f"wrote {Path(args.out) / 'study.md'} ({study['seconds'] / 60:.0f} min)")
 
 
@@ -226,6 +227,9 @@ def build_parser():
                        help="the stability sweep's clips and schedule: tiny (4 frames, 64 px, 10 steps per stage) "
                             "or fast (30 frames, 256 px, the fast preset's whole schedule, each fit's curve; hours "
                             "on one core, resumable); default: fast, with --quick tiny")
+    study.add_argument("--stability-kinds", default=None, metavar="KINDS",
+                       help="the sweep's cases of these kinds only, e.g. baseline,poses,shapes,framing,inputs "
+                            "(default: all: baseline, poses, shapes, framing, inputs, rates, weights)")
     study.add_argument("--progress", choices=("bar", "jsonl", "none"), default="none",
                        help="progress of each fit (default: none; the study logs each run)")
     study.set_defaults(run=_study)

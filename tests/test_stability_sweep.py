@@ -93,3 +93,11 @@ def test_every_clip_case_ends_finite_and_the_report_draws_their_curves(tmp_path,
     monkeypatch.setattr(stability, "_run_case", lambda *args: pytest.fail("refitted a finished case"))
     again = run_stability_sweep(tmp_path / "sweep", quick=True, scale="tiny", log=lambda message: None, cases=cases)
     assert [row["joint_mm"] for row in again["rows"]] == [row["joint_mm"] for row in section["rows"]]
+
+
+def test_the_sweep_can_be_run_and_reported_kind_by_kind(tmp_path):
+    with pytest.raises(ValueError, match="no stability cases of kind 'colours'"):
+        run_stability_sweep(tmp_path, kinds=("colours",))
+    section = run_stability_sweep(tmp_path / "sweep", quick=True, scale="tiny", log=lambda message: None,
+                                  kinds=("baseline",))
+    assert [row["kind"] for row in section["rows"]] == ["baseline"] and section["all_finite"]

@@ -213,14 +213,20 @@ def _never_empty(mask):
     return mask
 
 
-def run_stability_sweep(out, quick=False, scale="tiny", log=print, cases=None):
+def run_stability_sweep(out, quick=False, scale="tiny", log=print, cases=None, kinds=None):
     """Run the sweep at `scale` (a SCALES key) into `out` (clips/, fits/, one result file per
-    case, kept on a rerun); `cases` (SweepCase list) replaces sweep_cases(quick). Returns
-    {"rows": [...], "all_finite": bool, "scale": ..., "description": ...}."""
+    case, kept on a rerun); `cases` (SweepCase list) replaces sweep_cases(quick), `kinds` keeps
+    the cases of those kinds only. Returns {"rows": [...], "all_finite": bool, "scale": ...,
+    "description": ...}."""
     out, scale = Path(out), SCALES[scale]
     steps = min(4, scale.steps or 4) if quick else scale.steps
     rows = []
     cases = sweep_cases(quick) if cases is None else cases
+    if kinds:
+        unknown = set(kinds) - {case.kind for case in sweep_cases()}
+        if unknown:
+            raise ValueError(f"no stability cases of kind {sorted(unknown)[0]!r}")
+        cases = [case for case in cases if case.kind in kinds]
     for number, case in enumerate(cases):
         result_file = out / "results" / f"{case.key}.json"
         if result_file.is_file():

@@ -80,12 +80,13 @@ def dataset_clips(dataset, pattern=None):
 
 
 def run_study(dataset, out, clips=None, quick=False, preset="fast", sections=SECTIONS, progress="none", log=print,
-              runtime_presets=RUNTIME_PRESETS, runtime_frames=RUNTIME_FRAMES, stability_scale=None, **fit_options):
+              runtime_presets=RUNTIME_PRESETS, runtime_frames=RUNTIME_FRAMES, stability_scale=None, stability_kinds=None,
+              **fit_options):
     """Run the study's sections into `out`; returns the study dict (also study.json/study.md).
     `fit_options` go to every fit (e.g. max_steps, resolution for small tests); --quick caps
     every stage at QUICK_STEPS steps and runs a small stability sweep (one case per kind, at
     most 4 steps per stage); `stability_scale` is the sweep's scale (stability.SCALES; default
-    "fast", with --quick "tiny")."""
+    "fast", with --quick "tiny"); `stability_kinds` keeps the sweep's cases of those kinds."""
     out = Path(out)
     unknown = [s for s in sections if s not in SECTIONS]
     if unknown:
@@ -105,7 +106,8 @@ def run_study(dataset, out, clips=None, quick=False, preset="fast", sections=SEC
     if "stability" in sections:
         scale = stability_scale or ("tiny" if quick else "fast")
         folder = out / ("stability" if scale == "tiny" else f"stability_{scale}")
-        study["sections"]["stability"] = run_stability_sweep(folder, quick=quick, scale=scale, log=log)
+        study["sections"]["stability"] = run_stability_sweep(folder, quick=quick, scale=scale, log=log,
+                                                             kinds=stability_kinds)
     study["seconds"] = time.time() - started
     write_outputs(out, study)
     return study
