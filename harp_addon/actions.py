@@ -16,7 +16,7 @@ from . import engine
 from .core import avatar_folder, sequence_folder
 from .export import ExportError, export_fbx, export_gltf, save_blend
 from .jobs import Job
-from .retarget import RetargetError, bone_map, retarget_motion, save_bone_map
+from .retarget import RetargetError, bone_map, deform_map, retarget_motion, save_bone_map
 from .scene import FIRST_FRAME, BindError, bind_avatar, footage_camera
 
 INIT_FILE = "init.npz"
@@ -208,14 +208,16 @@ def last_bound(scene):
     raise ActionError("no bound HARP avatar in this scene: bind one first")
 
 
-def retarget(scene, target, kind="mixamo", map_file="", place="follow"):
+def retarget(scene, target, kind="mixamo", map_file="", place="follow", mesh=False):
     """Put the newest bound avatar's motion onto the armature `target` (retarget.py), its bones
-    named by the rig kind's map or by the bone map file (`kind` "file"); one ActionError line on
-    failure."""
+    named by the rig kind's map or by the bone map file (`kind` "file"), and with `mesh` a copy of
+    the personalised mesh skinned to it; one ActionError line on failure."""
     bound = last_bound(scene)
     try:
-        mapping = bone_map(map_file if kind == "file" else kind, bound.files.rig.side)
-        return retarget_motion(bound, target, mapping, place, scene)
+        side = bound.files.rig.side
+        mapping = bone_map(map_file if kind == "file" else kind, side)
+        deform = deform_map(kind, side, mapping) if mesh else None
+        return retarget_motion(bound, target, mapping, place, scene, deform=deform)
     except (RetargetError, avatar_folder.AvatarFolderError, OSError) as error:
         raise ActionError(str(error)) from None
 

@@ -139,8 +139,10 @@ class HARP_OT_retarget(_Action):
 
     def act(self, context, settings):
         result = actions.retarget(context.scene, settings.retarget_rig, settings.rig_kind,
-                                  bpy.path.abspath(settings.bone_map_file), settings.retarget_place)
-        return f"keyed {len(result.bones)} bones of {result.armature.name}"
+                                  bpy.path.abspath(settings.bone_map_file), settings.retarget_place,
+                                  mesh=settings.mesh_onto_rig)
+        moved = f"; the mesh is {result.mesh.name}" if result.mesh is not None else ""
+        return f"keyed {len(result.bones)} bones of {result.armature.name}{moved}"
 
 
 class HARP_OT_save_bone_map(_Action):

@@ -57,6 +57,7 @@ class HARP_PT_panel(bpy.types.Panel):
         row.prop(settings, "bone_map_file")
         row.operator("harp.save_bone_map", text="", icon="FILE_TICK")
         column.prop(settings, "retarget_place")
+        column.prop(settings, "mesh_onto_rig")
         column.operator("harp.retarget", icon="ARMATURE_DATA")
 
         box = layout.box()

@@ -46,6 +46,9 @@ class HarpSettings(bpy.types.PropertyGroup):
                                   description="JSON: {\"wrist\": \"hand.R\", \"index1\": ...}; joints left out stay as "
                                               "they are")
     retarget_place: EnumProperty(name="Placement", items=PLACES, default="follow")
+    mesh_onto_rig: BoolProperty(name="Mesh onto the rig", default=False,
+                                description="Also skin a copy of the personalised mesh to your rig (carried into its "
+                                            "rest hand); off: the mesh stays on the avatar's own armature")
     gltf: StringProperty(name="glTF", subtype="FILE_PATH", default="//hand.glb")
     fbx: StringProperty(name="FBX", subtype="FILE_PATH", default="",
                         description="Also export the hand as FBX (skin, embedded textures, motion); empty: no FBX")

@@ -532,3 +532,22 @@ def test_the_motion_goes_onto_a_generated_rigify_rig(prepared_avatar, empty_scen
             errors.append(np.linalg.norm(theirs_world - ours_world) * 1000)
     print(f"Rigify rig: fingertips {np.mean(errors):.3f} mm mean, {np.max(errors):.3f} mm worst")
     assert np.mean(errors) < 0.5 and np.max(errors) < 1.0
+
+
+def test_the_personalised_mesh_can_go_onto_the_artists_rig(prepared_avatar, empty_scene):
+    from harp_addon.retarget import RetargetError, bone_map, deform_map, retarget_motion
+
+    bound = bind_avatar(prepared_avatar.avatar)
+    data = bound.files.rig
+    artist, _ = mixamo_style_rig(bound, np.random.default_rng(6), empty_scene)
+    mapping = bone_map("mixamo", data.side)
+    result = retarget_motion(bound, artist, mapping, deform=deform_map("mixamo", data.side))
+    assert result.mesh.parent == artist and {group.name for group in result.mesh.vertex_groups} == set(mapping.values())
+    worst = 0.0
+    for frame in bound.frames:
+        empty_scene.frame_set(int(frame))
+        worst = max(worst, np.abs(evaluated_vertices(result.mesh) - evaluated_vertices(bound.mesh)).max() * 1000)
+    print(f"the mesh on the artist's rig: worst vertex {worst:.2e} mm from the bound avatar's")
+    assert worst < 0.01
+    with pytest.raises(RetargetError, match="cannot go onto a Rigify rig yet"):
+        deform_map("rigify", "right")
