@@ -22,7 +22,9 @@ import time
 
 LOG_LINES = 200             # lines kept for the panel
 ERROR_LINES = 12            # last lines of the worker's error output shown on a failure
-CANCEL_GRACE_SECONDS = 60   # how long a cancelled worker may take to save its checkpoint
+CANCEL_GRACE_SECONDS = 60   # how long a cancelled worker may take to save its checkpoint before it is killed
+RESIGNAL_SECONDS = 1.0      # a worker that has said nothing yet is sent the interrupt again this often (one sent
+#                             while it was still starting can be lost, and there is nothing to save yet)
 
 
 @dataclasses.dataclass
@@ -75,6 +77,8 @@ class Job:
         self._lines = queue.Queue()
         self._readers = []
         self._cancel_requested = False
+        self._cancelled_at = self._signalled_at = None
+        self._heard = False               # any output from the current command yet
         self.started = None
 
     # ------------------------------------------------------------------ control
@@ -85,13 +89,27 @@ class Job:
         return self
 
     def cancel(self):
-        """Ask the worker to stop: an interrupt, which makes a fit save its checkpoint first."""
+        """Ask the worker to stop: an interrupt, which makes a fit save its checkpoint first. A
+        worker still starting is interrupted again until it stops or speaks; one that has not
+        stopped CANCEL_GRACE_SECONDS later is killed (poll does both)."""
         self._cancel_requested = True
+        self._cancelled_at = time.time()
+        self._interrupt()
+
+    def _interrupt(self):
         if self.process is not None and self.process.poll() is None:
+            self._signalled_at = time.time()
             if sys.platform == "win32":
                 self.process.send_signal(signal.CTRL_BREAK_EVENT)
             else:
                 self.process.send_signal(signal.SIGINT)
+
+    def _follow_up_cancel(self):
+        now = time.time()
+        if now - self._cancelled_at > CANCEL_GRACE_SECONDS:
+            self.kill()
+        elif not self._heard and (self._signalled_at is None or now - self._signalled_at > RESIGNAL_SECONDS):
+            self._interrupt()
 
     def kill(self):
         if self.process is not None and self.process.poll() is None:
@@ -110,6 +128,7 @@ class Job:
                 stream, line = self._lines.get_nowait()
             except queue.Empty:
                 break
+            self._heard = True
             if stream == "stderr":
                 if line.strip():
                     self.errors.append(line.rstrip())
@@ -122,6 +141,8 @@ class Job:
                 self.progress = event
             else:
                 self.log.append(event.message)
+        if self.state == "running" and self._cancel_requested and self.process.poll() is None:
+            self._follow_up_cancel()
         if self.state == "running" and self.process.poll() is not None and not any(r.is_alive() for r in self._readers):
             if self._lines.empty():
                 self._command_ended(self.process.returncode)
@@ -161,6 +182,7 @@ class Job:
     # ------------------------------------------------------------------ internals
     def _next_command(self):
         self.command_index += 1
+        self._heard = False
         if self.command_index >= len(self.commands):
             self.state = "finished"
             return

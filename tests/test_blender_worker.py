@@ -96,3 +96,24 @@ def test_esc_stops_the_running_job_as_cancel_does():
     finally:
         actions.JOBS.pop("esc", None)
     assert actions.key_pressed("no such scene", "ESC", "PRESS") == "idle"
+
+
+def test_a_cancelled_worker_stops_even_if_the_interrupt_is_lost_or_ignored(monkeypatch):
+    # interrupted at once, while the worker starts: an interrupt that lands before Python is ready can be lost
+    for _ in range(3):
+        job = jobs.Job([[sys.executable, "-c", "import time; time.sleep(60)"]], "fit").start()
+        job.cancel()
+        assert job.wait(timeout=30) == "cancelled"
+    # a worker that ignores the interrupt is killed after the grace period
+    monkeypatch.setattr(jobs, "CANCEL_GRACE_SECONDS", 1.0)
+    stubborn = jobs.Job([[sys.executable, "-c", textwrap.dedent("""
+        import signal, time
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        print("ready", flush=True)
+        time.sleep(60)""")]], "fit").start()
+    while not stubborn.log:
+        stubborn.poll()
+        time.sleep(0.05)
+    stubborn.cancel()
+    started = time.time()
+    assert stubborn.wait(timeout=30) == "cancelled" and time.time() - started < 10
