@@ -5,9 +5,11 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
 # as pipeline/cli.PRESET_NOTES gives the measured figures (the add-on cannot import the fitting engine)
-PRESETS = [("fast", "Fast", "About 6 min for a 150-frame clip on one CPU core"),
-           ("balanced", "Balanced", "About 3x as long as Fast; not yet measured better"),
-           ("full", "Full", "The paper's schedule at 448 px, about 50 min for 150 frames; level with Fast there")]
+PRESETS = [("fast", "Fast", "About 6 min for a 150-frame clip on one CPU core; the best of the three so far"),
+           ("balanced", "Balanced", "About 3x as long as Fast; its hand's size drifts (new poses worse): "
+                                    "not recommended"),
+           ("full", "Full", "The paper's schedule at 448 px, about 50 min for 150 frames, to compare with HARP; "
+                            "not better than Fast")]
 SHADOWS = [("auto", "Auto", "Decided from the fitted light: on under a dominant light"),
            ("on", "On", "Self-shadowing always"), ("off", "Off", "No self-shadowing (soft, even light)")]
 SIDES = [("auto", "Auto", "Tell from the footage (MediaPipe)"), ("right", "Right", ""), ("left", "Left", "")]

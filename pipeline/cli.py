@@ -137,11 +137,12 @@ def _demo(args):
 # clip"); here, not in fit/, because importing the fit imports torch before configure_threads may set its
 # threads' waiting; the add-on's panel (harp_addon/properties.py) says the same
 PRESET_NOTES = {
-    "fast": "about 6 min for a 150-frame clip on one CPU core",
-    "balanced": "320 px, a 512 texture where the footage fills it, about 3x as long as fast; not yet measured "
-                "better than fast beyond the seed spread",
-    "full": "the paper's schedule at 448 px, about 50 min for 150 frames; measured level with fast there, not "
-            "better",
+    "fast": "about 6 min for a 150-frame clip on one CPU core; the best of the three on the clips measured",
+    "balanced": "320 px, a 512 texture where the footage fills it, about 3x as long as fast; on the 30-frame demo "
+                "its held-out frames score 0.5 dB higher but its hand ends 10%% off in size (new poses 9 dB "
+                "worse): not recommended",
+    "full": "the paper's schedule at 448 px, about 50 min for 150 frames (kept to compare with HARP): level with "
+            "fast on the 150-frame clips, behind it on the demo (held-out -0.9 dB, surface 2x)",
 }
 
 
