@@ -56,7 +56,7 @@ def markdown(study):
     if "stability" in sections:
         lines += _stability_table(sections["stability"])
     for name, path in study.get("plots", {}).items():
-        if isinstance(path, dict):
+        if isinstance(path, dict) or name == "stability":     # the sweep's curves stand in its section
             continue
         lines += [f"![{name}]({path})", ""]
     return "\n".join(lines) + "\n"
