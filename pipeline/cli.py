@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from pathlib import Path
 
@@ -339,6 +340,7 @@ def build_parser():
 
 def main(argv=None):
     args = build_parser().parse_args(argv)
+    _take_interrupts()
     try:
         args.run(args)
     except KeyboardInterrupt:
@@ -348,6 +350,18 @@ def main(argv=None):
         print(f"harp: error: {error}", file=sys.stderr)
         return 1
     return 0
+
+
+def _take_interrupts():
+    """Ctrl-C (and the add-on's Cancel, which sends the same interrupt) stops every command, even
+    one started by a process that ignores interrupts (a background job of a shell, some desktop
+    launchers): their children inherit the ignoring, and Python then never raises
+    KeyboardInterrupt."""
+    import threading
+
+    if threading.current_thread() is threading.main_thread() and \
+            signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 if __name__ == "__main__":

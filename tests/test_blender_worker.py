@@ -85,7 +85,8 @@ def test_progress_lines():
 
 
 def test_esc_stops_the_running_job_as_cancel_does():
-    job = jobs.Job([[sys.executable, "-c", "import time; time.sleep(60)"]], "fit").start()
+    job = jobs.Job([[sys.executable, "-c", "import signal, time; signal.signal(signal.SIGINT, "
+                                           "signal.default_int_handler); time.sleep(60)"]], "fit").start()
     actions.JOBS["esc"] = actions.Running(job, "fit", None, "esc")
     try:
         assert actions.key_pressed("esc", "A", "PRESS") == "ignored"
@@ -98,10 +99,25 @@ def test_esc_stops_the_running_job_as_cancel_does():
     assert actions.key_pressed("no such scene", "ESC", "PRESS") == "idle"
 
 
+def test_harp_takes_interrupts_even_when_started_ignoring_them():
+    import subprocess
+
+    result = subprocess.run([sys.executable, "-c", textwrap.dedent("""
+        import signal, sys
+        signal.signal(signal.SIGINT, signal.SIG_IGN)          # as a shell's background job starts
+        from pipeline import cli
+        cli._take_interrupts()
+        print(signal.getsignal(signal.SIGINT) is signal.default_int_handler)""")], capture_output=True, text=True,
+                            timeout=60)
+    assert result.stdout.strip() == "True", result.stderr
+
+
 def test_a_cancelled_worker_stops_even_if_the_interrupt_is_lost_or_ignored(monkeypatch):
-    # interrupted at once, while the worker starts: an interrupt that lands before Python is ready can be lost
+    # interrupted at once, while the worker starts: an interrupt that lands before Python is ready can be lost.
+    # The worker takes interrupts as harp does (cli._take_interrupts), whatever this test's process ignores.
+    worker = "import signal, time; signal.signal(signal.SIGINT, signal.default_int_handler); time.sleep(60)"
     for _ in range(3):
-        job = jobs.Job([[sys.executable, "-c", "import time; time.sleep(60)"]], "fit").start()
+        job = jobs.Job([[sys.executable, "-c", worker]], "fit").start()
         job.cancel()
         assert job.wait(timeout=30) == "cancelled"
     # a worker that ignores the interrupt is killed after the grace period
