@@ -6,11 +6,11 @@ them there, nothing is committed twice); run from the project (tests, `harp blen
 they are imported from the installed pipeline package.
 """
 try:  # the built extension
-    from .vendor.formats import (avatar_folder, camera, fit_report, hand_model_file, pose_smoothing, rotations,
-                                  sequence_folder)
+    from .vendor.formats import (avatar_folder, camera, environment_light, fit_report, hand_model_file,
+                                  pose_smoothing, rotations, sequence_folder)
 except ImportError:  # the project itself
-    from pipeline.formats import (avatar_folder, camera, fit_report, hand_model_file, pose_smoothing, rotations,
-                                  sequence_folder)
+    from pipeline.formats import (avatar_folder, camera, environment_light, fit_report, hand_model_file,
+                                  pose_smoothing, rotations, sequence_folder)
 
-__all__ = ["avatar_folder", "camera", "fit_report", "hand_model_file", "pose_smoothing", "rotations",
-           "sequence_folder"]
+__all__ = ["avatar_folder", "camera", "environment_light", "fit_report", "hand_model_file", "pose_smoothing",
+           "rotations", "sequence_folder"]

@@ -28,13 +28,14 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
-from .core import avatar_folder, camera, pose_smoothing, rotations, sequence_folder
+from .core import avatar_folder, camera, environment_light, pose_smoothing, rotations, sequence_folder
 from .rig import build_hand_rig
 
 CAPTURE_TO_WORLD = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])
 FIRST_FRAME = 1
 SKIN_ROUGHNESS = 0.5       # a satin skin: between the oily shine of 0.3 and the matte of 0.7
 UV_MAP = "UVMap"           # the rig's UV layer (rig.py)
+ENVIRONMENT_IMAGE_SIZE = (64, 32)   # the baked environment light: bands 1 and 2 need no more
 TRACKED = ("objects", "meshes", "armatures", "cameras", "lights", "worlds", "materials", "images", "actions",
            "collections")
 
@@ -214,7 +215,7 @@ def _fitted_light(name, collection, space, files, scene):
     """The fit's light as Blender lights: a sun from the direction of the fitted point light
     (seen from the hand), as strong as the fit's diffuse share (1 - ambient; a sun of strength
     pi (1 - a) lights a surface facing it like the fit's shading does), and, when the scene has
-    no world yet, a plain world of the ambient share."""
+    no world yet, a world of the ambient share and the environment light (_fitted_world)."""
     light = files.description.get("light", {})
     ambient = float(light.get("ambient", 0.6))
     centre = np.asarray(files.poses.transl, dtype=np.float64).mean(0)
@@ -234,11 +235,33 @@ def _fitted_light(name, collection, space, files, scene):
     sun.matrix_parent_inverse = Matrix.Identity(4)
     sun.matrix_basis = Matrix(matrix.tolist())
     if scene.world is None:
-        scene.world = bpy.data.worlds.new(f"{name} ambient")
-        background = next(node for node in _node_tree(scene.world).nodes if node.bl_idname == "ShaderNodeBackground")
-        background.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
-        background.inputs["Strength"].default_value = ambient
+        scene.world = _fitted_world(name, ambient, environment_light.from_description(light))
     return sun
+
+
+def _fitted_world(name, ambient, environment):
+    """A world that lights the skin as the fit's ambient ratio and environment light do: a plain
+    one of the ambient share, or, with an environment light, its radiance baked into a small
+    equirectangular image (formats/environment_light.py) in the capture space's orientation."""
+    world = bpy.data.worlds.new(f"{name} ambient")
+    tree = _node_tree(world)
+    background = next(node for node in tree.nodes if node.bl_idname == "ShaderNodeBackground")
+    background.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    background.inputs["Strength"].default_value = ambient
+    if environment is None:
+        return world
+    width, height = ENVIRONMENT_IMAGE_SIZE
+    radiance = environment_light.equirectangular_radiance(environment, ambient, width, height,
+                                                          to_camera=CAPTURE_TO_WORLD[:3, :3].T)
+    image = bpy.data.images.new(f"{name} environment", width, height, alpha=False, float_buffer=True)
+    pixels = np.concatenate([radiance, np.ones((height, width, 1), np.float32)], axis=-1)
+    image.pixels.foreach_set(pixels.reshape(-1))
+    image.pack()          # a generated image is kept in the .blend only packed
+    texture = tree.nodes.new("ShaderNodeTexEnvironment")
+    texture.image, texture.location = image, (-300, 300)
+    tree.links.new(texture.outputs["Color"], background.inputs["Color"])
+    background.inputs["Strength"].default_value = 1.0
+    return world
 
 
 def _image(path, colour_space, pack, source="FILE"):

@@ -51,7 +51,7 @@ def _fit(args):
                  device=args.device, shadows=args.shadows, hold_out_every=args.hold_out_every,
                  known_appearance=args.known_appearance, observers=observers, max_steps=args.max_steps,
                  exposure=args.exposure, solve_albedo=args.solve_albedo, budget_seconds=args.budget,
-                 validation_frames=args.validation_frames, workers=args.workers)
+                 validation_frames=args.validation_frames, workers=args.workers, environment=args.environment)
     print(f"wrote {args.out} in {report['total_seconds']:.0f} s: {metrics_line(report['metrics'])}")
 
 
@@ -177,6 +177,10 @@ def build_parser():
     fit.add_argument("--exposure", choices=("auto", "on", "off"), default="auto",
                      help="per-frame exposure and white-balance gains: auto (default) switches them on when the "
                           "footage's background brightness changes over the clip (a phone's automatic exposure)")
+    fit.add_argument("--environment", choices=("auto", "on", "off"), default=None,
+                     help="an environment light (a room's light from every side, spherical harmonics) beside the "
+                          "point light: off (default: not yet shown to help, docs/fidelity.md), on, or auto (kept "
+                          "when it lights the hand unevenly)")
     fit.add_argument("--resume", action="store_true", help="continue from the avatar folder's checkpoint")
     fit.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar", help=PROGRESS_HELP)
     fit.add_argument("--threads", type=int, metavar="N", help=THREADS_HELP)

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..fit.avatar import LIGHT, SHAPE, TEXTURES, Avatar
+from ..fit.avatar import LIGHT, SHAPE, SWITCHES, TEXTURES, Avatar
 from ..fit.checkpoint import FitState
 from ..fit.pose_interpolation import start_from_neighbours
 from ..fit.outputs import score_renders, write_grid
@@ -89,7 +89,7 @@ def evaluate_held_out(fit_folder, sequence, frames=None, steps=300, device=None,
         raise EvaluationError(f"held-out frames {frames.tolist()} outside the clip's {count} frames")
     settings = saved.settings
     problem = build_problem(Path(sequence), settings, frames, device,
-                            shared={name: saved.avatar[name] for name in FROZEN + LIGHT}, frozen=FROZEN)
+                            shared={name: saved.avatar[name] for name in FROZEN + LIGHT + SWITCHES}, frozen=FROZEN)
     if protocol == "neighbours":
         start_from_neighbours(problem.avatar, saved.avatar, report["frames"], frames)
     shadows = bool(saved.state.shadows.on)

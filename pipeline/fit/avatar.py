@@ -12,13 +12,16 @@ linear-blend-skinning rig (Blender's Armature modifier, a game engine) animates:
 folder's rest mesh posed by the armature reproduces every fitted frame. It is also cheaper:
 the normals are taken once per step, not once per frame.
 Per frame: global rotation, translation, joint rotations (the wrist's only in hand+forearm
-mode), and the camera's exposure (a colour gain; fitted only when the clip needs it). Shared: shape, displacements, albedo texture, normal map, light position, ambient ratio.
+mode), and the camera's exposure (a colour gain; fitted only when the clip needs it). Shared: shape, displacements, albedo texture, normal map, light position, ambient ratio,
+and the environment light (spherical harmonics, formats/environment_light.py; in use only while
+the `environment_on` switch is set).
 """
 from __future__ import annotations
 
 import numpy as np
 import torch
 
+from ..formats import environment_light
 from ..handmodel.lbs import HandModel
 from ..render.renderer import Appearance, Light, RenderMesh
 from ..render.shading import vertex_normals
@@ -30,8 +33,9 @@ POSE = ("global_orient", "transl", "pose")
 PER_FRAME = POSE + ("exposure",)
 SHAPE = ("betas", "displacement")
 TEXTURES = ("albedo", "normal_map")
-LIGHT = ("light_position", "ambient_logit")
+LIGHT = ("light_position", "ambient_logit", "environment")
 APPEARANCE = TEXTURES + LIGHT
+SWITCHES = ("environment_on",)   # buffers that say which parts of the light are in use (saved with the avatar)
 
 
 class Avatar(torch.nn.Module):
@@ -66,6 +70,8 @@ class Avatar(torch.nn.Module):
             light_position = np.asarray(initial.transl[frames]).mean(0) * np.array([1.0, 1.0, 0.5]) + [0.0, -0.3, 0.0]
         self.light_position = parameter(light_position)
         self.ambient_logit = parameter(np.log(INITIAL_AMBIENT / (1 - INITIAL_AMBIENT)))
+        self.environment = parameter(np.zeros((environment_light.COEFFICIENTS, 3)))
+        self.register_buffer("environment_on", torch.zeros((), dtype=torch.bool, device=device))
         # the wrist joint rotates the hand against the forearm: free only with a forearm
         self.register_buffer("pose_mask", torch.ones(16, 3, dtype=dtype, device=device))
         if model.mode == "hand":
@@ -92,7 +98,16 @@ class Avatar(torch.nn.Module):
         return torch.exp(self.exposure[batch])[:, None, None, :]
 
     def light(self, shadows=False):
-        return Light(self.light_position, self.ambient, shadows=shadows)
+        return Light(self.light_position, self.ambient, shadows=shadows,
+                     environment=self.environment if bool(self.environment_on) else None)
+
+    @torch.no_grad()
+    def switch_environment(self, on: bool):
+        """Use the environment light or not; switched off, its coefficients are 0 and stay out
+        of every render (they get no gradient, so the optimiser leaves them)."""
+        self.environment_on.fill_(bool(on))
+        if not on:
+            self.environment.zero_()
 
     def posed(self, batch):
         """(vertices (B, V, 3), keypoints (B, K, 3)) of the frames `batch` (indices into the fit's

@@ -20,6 +20,7 @@ import signal
 import torch
 import torch.multiprocessing as multiprocessing
 
+from .avatar import SWITCHES
 from .schedule import StageSpec
 
 
@@ -30,6 +31,7 @@ class BatchWorkers:
     def __init__(self, problem, recipe: dict, count: int):
         self.problem, self.count = problem, count
         parameters = dict(problem.avatar.named_parameters())
+        parameters.update((name, getattr(problem.avatar, name)) for name in SWITCHES)   # the light's switches too
         for parameter in parameters.values():
             parameter.data.share_memory_()
         context = multiprocessing.get_context("spawn")
@@ -97,7 +99,10 @@ def _serve(connection, recipe, parameters):
         problem = build_problem(**recipe)
         own = dict(problem.avatar.named_parameters())
         for name, shared in parameters.items():
-            own[name].data = shared
+            if name in own:
+                own[name].data = shared
+            else:   # a switch (a buffer)
+                setattr(problem.avatar, name, shared)
         connection.send(("ready",))
         while True:
             message = connection.recv()

@@ -14,16 +14,18 @@ from pathlib import Path
 
 import torch
 
+from ..formats.environment_light import COEFFICIENTS as ENVIRONMENT_COEFFICIENTS
 from .problem import FitError
 from .schedule import Schedule
 from .settings import FitSettings
 
 CHECKPOINT_FILE = "checkpoint.pt"
 CHECKPOINT_FORMAT = "harp-fit-checkpoint"
-CHECKPOINT_VERSION = 4          # 3: per-frame exposure gains (avatar "exposure", settings.exposure); 4: the
+CHECKPOINT_VERSION = 5          # 3: per-frame exposure gains (avatar "exposure", settings.exposure); 4: the
 #                                 schedule in force in the state (a budget no longer rewrites the settings),
-#                                 the validation checks and the best one's avatar
-READABLE_VERSIONS = (2, 3, 4)   # a finished fit of version 2 reads as one with its gains off
+#                                 the validation checks and the best one's avatar; 5: the environment light
+READABLE_VERSIONS = (2, 3, 4, 5)   # a finished fit of version 2 reads as one with its gains off, before 5 without
+#                                    an environment light
 
 
 @dataclasses.dataclass
@@ -59,6 +61,7 @@ class FitState:
     albedo_solve: dict | None = None    # albedo_solve.solve_avatar_albedo's figures, once it has run
     validation: list = dataclasses.field(default_factory=list)   # validation.Validator's checks, in order
     best: dict | None = None            # the best check's psnr, stage and step (its avatar: Checkpoint.best_avatar)
+    environment: dict | None = None     # `auto` environment light, once decided: on, relative_strength
 
     @classmethod
     def fresh(cls, schedule: Schedule, shadows="auto"):
@@ -128,5 +131,16 @@ def load_checkpoint(path, device=None) -> Checkpoint:
     settings = FitSettings.from_dict(settings)
     if version < 4:      # the schedule in force was the settings' steps (a budget rewrote them)
         state["schedule"] = settings.schedule().to_list()
+    if version < 5:      # no environment light
+        for saved_avatar in (avatar, saved.get("best_avatar")):
+            if saved_avatar is not None:
+                _without_environment(saved_avatar)
     return Checkpoint(settings, FitState.from_dict(state), avatar, saved["optimiser"], saved["generator"],
                       saved.get("best_avatar"), version)
+
+
+def _without_environment(avatar_state: dict):
+    """An avatar state_dict from before the environment light, given one that is switched off."""
+    like = avatar_state["ambient_logit"]
+    avatar_state["environment"] = torch.zeros(ENVIRONMENT_COEFFICIENTS, 3, dtype=like.dtype, device=like.device)
+    avatar_state["environment_on"] = torch.zeros((), dtype=torch.bool, device=like.device)

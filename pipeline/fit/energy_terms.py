@@ -188,3 +188,11 @@ def _exposure(batch):
     avatar = batch.problem.avatar
     return losses.exposure_loss(avatar.exposure, avatar.frame_numbers, *batch.problem.exposure_measured)
 
+
+
+# ours: the environment light's coefficients held towards none (a uniform room), so that what the light
+# need not explain stays in the albedo only where the frames agree on it; on only while the light is in use
+@_term("environment", 0.1, _APPEARANCE,
+       applies=lambda problem: bool(problem.avatar.environment_on))
+def _environment(batch):
+    return losses.environment_prior_loss(batch.problem.avatar.environment)

@@ -20,7 +20,8 @@ import torch
 from ..formats.initial_estimate import read_initial_estimate
 from ..formats.sequence_folder import validate_sequence_folder
 from .albedo_solve import solve_avatar_albedo
-from .avatar import APPEARANCE, SHAPE
+from ..formats.environment_light import relative_strength
+from .avatar import APPEARANCE, SHAPE, SWITCHES
 from .checkpoint import CHECKPOINT_FILE, CHECKPOINT_VERSION, Checkpoint, FitState, load_checkpoint, save_checkpoint
 from .budget import BudgetKeeper
 from .estimate import FitEstimate, active_stages, measure_step_costs
@@ -28,13 +29,16 @@ from .frames import held_out_frames, select_frames, validation_frames
 from .outputs import write_outputs
 from .problem import FitError, FitProblem, build_problem
 from .progress import Progress
-from .schedule import SHADOWS_DECIDED_IN, step_kind
+from .schedule import ENVIRONMENT_DECIDED_IN, SHADOWS_DECIDED_IN, step_kind
 from .settings import settings_for
 from .stage_run import StageRun
 from .texture_fill import fill_avatar_albedo
 from .validation import Validator, restore_best
 
 SHADOW_AMBIENT_THRESHOLD = 0.75   # a fitted ambient ratio below this means a dominant light
+# a fitted environment light whose shading varies over the sphere by less than this share of the
+# ambient (environment_light.relative_strength) is switched off: the room lights the hand evenly
+ENVIRONMENT_THRESHOLD = 0.05
 KNOWN_APPEARANCE = SHAPE + APPEARANCE   # what a fit with known appearance takes from another fit, frozen
 # settings of what runs after the stages: a resumed fit may change them (they do not touch the checkpoint)
 AFTER_THE_STAGES = ("solve_albedo",)
@@ -146,6 +150,7 @@ def _run(setup: FitSetup, job, out, observers, started):
                 if result.event:
                     reporter.log(result.event)
                 _decide_shadows(problem, run, reporter)
+                _decide_environment(problem, run, reporter)
                 if validator is not None and validator.due(run.stage, state.step):
                     _validate(validator, state, run, index, estimate, reporter)
                 clock.observe(observers, "step", problem)
@@ -223,9 +228,10 @@ def _set_up(sequence, job: FitJob, overrides) -> FitSetup:
         known = load_checkpoint(Path(known_appearance) / CHECKPOINT_FILE, device)
         if not known.state.finished:
             raise FitError(f"the fit in {known_appearance} has not finished: resume it first")
-        shared = {name: known.avatar[name] for name in KNOWN_APPEARANCE}
-        # its light comes with its shadows decision
+        shared = {name: known.avatar[name] for name in KNOWN_APPEARANCE + SWITCHES}
+        # its light comes with its shadows and environment decisions
         settings = dataclasses.replace(settings, shadows="on" if known.state.shadows.on else "off",
+                                       environment="on" if bool(known.avatar["environment_on"]) else "off",
                                        displacement_grid=known.settings.displacement_grid)   # its displacements' grid
     recipe = dict(sequence=sequence, settings=settings, frames=frames, device=device, shared=shared,
                   frozen=tuple(shared))
@@ -268,6 +274,23 @@ def _decide_shadows(problem, run, reporter):
     ambient = problem.avatar.ambient.item()
     decision.on, decision.decided, decision.ambient_at_decision = ambient < SHADOW_AMBIENT_THRESHOLD, True, ambient
     reporter.log(f"shadows auto: fitted ambient ratio {ambient:.2f} -> self-shadowing {'on' if decision.on else 'off'}")
+
+
+def _decide_environment(problem, run, reporter):
+    """`auto` environment light: fitted from the start of the appearance, kept half-way through
+    ENVIRONMENT_DECIDED_IN only if it lights the hand unevenly enough (ENVIRONMENT_THRESHOLD);
+    otherwise switched off, so that the rest of the fit does not pay for it."""
+    state = run.state
+    if (state.environment is not None or problem.settings.environment != "auto"
+            or run.stage.kind is not ENVIRONMENT_DECIDED_IN or state.step < run.stage.steps // 2):
+        return
+    avatar = problem.avatar
+    strength = relative_strength(avatar.environment.detach().cpu().numpy(), avatar.ambient.item())
+    on = strength >= ENVIRONMENT_THRESHOLD
+    avatar.switch_environment(on)
+    state.environment = {"on": on, "relative_strength": strength}
+    reporter.log(f"environment light auto: it varies by {100 * strength:.1f}% of the ambient over the sphere -> "
+                 f"{'on' if on else 'off'}")
 
 
 class _CheckpointSaver:

@@ -159,6 +159,12 @@ def exposure_loss(log_gains, times, measured, known, spread=0.02):
     return total
 
 
+def environment_prior_loss(coefficients):
+    """Sum of squares of the environment light's coefficients (8, 3): no environment is the
+    prior (a uniform room, all in the ambient ratio)."""
+    return coefficients.square().sum()
+
+
 def temporal_global_loss(rotations, translations, times, translation_unit=0.01):
     """Mean squared acceleration of the hand's global rotation matrices (F, 3, 3) and
     translations (F, 3) (in units of 1 cm) per frame^2: the whole hand may turn fast but smoothly.

@@ -14,6 +14,7 @@ import torch
 
 from .. import metrics
 from ..formats import avatar_folder as av
+from ..formats import environment_light
 from ..formats.fit_report import HELD_OUT_FRAMES, write_report
 from ..render.renderer import render
 
@@ -107,6 +108,8 @@ def write_outputs(out, problem, state, held_out=(), estimate=None, validation_fr
         "light_position": avatar.light_position.detach().cpu().tolist(),
         "appearance": "known (frozen)" if problem.known_appearance else "fitted", "texture_fill": state.texture_fill,
         "albedo_solve": state.albedo_solve,
+        "environment": {"requested": settings.environment, "decision": state.environment,
+                        "coefficients": environment_light.to_description(avatar.light().environment)},
         "exposure": {"decision": problem.exposure_note,
                      "gain": torch.exp(avatar.exposure.detach()).cpu().tolist() if problem.exposure_on else None},
         "mask_cut_frames": problem.mask_cut_frames,
@@ -137,7 +140,7 @@ def _write_avatar(out, problem, state, shadows):
     description = {
         "mode": model_data.mode, "side": model_data.side, "betas": betas.tolist(),
         "light": {"position": avatar.light_position.detach().cpu().tolist(), "ambient": avatar.ambient.item(),
-                  "shadows": shadows},
+                  "shadows": shadows, "environment": environment_light.to_description(avatar.light().environment)},
         "camera": {"K": clip.K.cpu().tolist(), "width": clip.width, "height": clip.height},
         "footage": {"sequence": str(problem.sequence.resolve()), "fps": clip.info.fps,
                     "frame_count": clip.info.frame_count, "width": clip.info.width, "height": clip.info.height},

@@ -115,8 +115,10 @@ def build_problem(sequence, settings: FitSettings, frames, device=None, shared=N
         exposure_measured = measured_exposure(clip)
         with torch.no_grad():   # a gain the photometric term alone had to find would take many steps
             avatar.exposure.copy_(exposure_measured[0])
+    avatar.switch_environment(settings.environment != "off")   # `auto`: fitted until fitting.py decides
     _take_shared(avatar, shared)
-    frozen = tuple(frozen) + (() if settings.exposure == "on" else ("exposure",))
+    frozen = tuple(frozen) + (() if settings.exposure == "on" else ("exposure",)) \
+        + (("environment",) if settings.environment == "off" else ())
     for name in frozen:
         getattr(avatar, name).requires_grad_(False)
     with torch.no_grad():

@@ -24,7 +24,7 @@ import time
 import numpy as np
 import torch
 
-from .avatar import APPEARANCE, SHAPE
+from .avatar import APPEARANCE, SHAPE, SWITCHES
 from .checkpoint import FitState
 from .outputs import score_renders
 from .pose_interpolation import ROTATIONS, start_from_neighbours
@@ -130,7 +130,7 @@ class Validator:
         """The fitted avatar's shared parameters, and the validation frames' poses interpolated
         from their fitted neighbours."""
         avatar, fitted = self.problem.avatar, self.fit.avatar
-        for name in FROZEN:
+        for name in FROZEN + SWITCHES:
             if name != "exposure":
                 getattr(avatar, name).copy_(getattr(fitted, name))
         start_from_neighbours(avatar, {name: getattr(fitted, name) for name in ROTATIONS + ("transl",)},

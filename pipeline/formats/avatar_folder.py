@@ -1,8 +1,10 @@
 """The avatar folder: what a fit produces, `harp render` poses and the Blender add-on binds
 (numpy and the standard library only; one home of the format).
 
-    avatar.json    format + version, mode (hand / arm), side, shape vector, light, camera (K,
-                   width, height of the fitted images), settings used, per-stage timings
+    avatar.json    format + version, mode (hand / arm), side, shape vector, light (point light
+                   position, ambient ratio, shadows, and the environment light's 8 x 3 spherical
+                   harmonics or null: formats/environment_light.py), camera (K, width, height of
+                   the fitted images), settings used, per-stage timings
     albedo.png     albedo texture, 8-bit display values (the fit treats the frames' 8-bit values
                    as linear), in the model's UV layout (v up)
     normal.png     tangent-space normal map, 8-bit, (n + 1) / 2 per channel

@@ -91,6 +91,8 @@ class Light:
     shadow_resolution: int = 256
     shadow_target: torch.Tensor | None = None   # (3,) what the shadow camera looks at (default: mesh centre)
     shadow_radius: float | None = None          # radius the shadow map covers (default: the mesh's)
+    # (8, 3) the environment light's spherical harmonics (formats/environment_light.py); None: none
+    environment: torch.Tensor | None = None
 
 
 def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appearance=None,
@@ -169,7 +171,10 @@ def _lit_colour(ops, points, faces, frags, position, albedo, normal, light):
     if light.shadows:
         visibility = ops.shadow_visibility(points, faces, position, frags, light.position.to(points.dtype),
                                            light.shadow_resolution, light.shadow_target, light.shadow_radius)
-    return ops.lit_colour(albedo, normal, position, light_position, light.ambient, visibility)
+    colour = ops.lit_colour(albedo, normal, position, light_position, light.ambient, visibility)
+    if light.environment is not None:
+        colour = colour + albedo * reference_shading.environment_shading(normal, light.environment)
+    return colour
 
 
 def _covered(frags):

@@ -1,8 +1,11 @@
 """Shading formulas: vertex normals, UV tangent frames, tangent-space normal maps and the
-HARP light model  colour = albedo * (a + (1 - a) * max(0, n' . l) * V)."""
+HARP light model  colour = albedo * (a + (1 - a) * max(0, n' . l) * V), and the environment
+light's share of it (formats/environment_light.py)."""
 from __future__ import annotations
 
 import torch
+
+from ..formats.environment_light import basis as environment_basis
 
 
 def vertex_normals(points, faces):
@@ -62,3 +65,11 @@ def lit_colour(albedo, normal, position, light_position, ambient, visibility=Non
     points `position` (N, 3)."""
     to_light = torch.nn.functional.normalize(light_position - position, dim=-1, eps=1e-12)
     return shade(albedo, normal, to_light, ambient, visibility)
+
+
+def environment_shading(normal, coefficients):
+    """(N, 3) the environment light's share of the shading factor, sum_k c_k Y_k(n), of unit
+    normals (N, 3) (camera frame) under its spherical-harmonic coefficients (8, 3)
+    (formats/environment_light.py)."""
+    values = torch.stack(environment_basis(normal[:, 0], normal[:, 1], normal[:, 2]), dim=1)
+    return values @ coefficients.to(normal.dtype)

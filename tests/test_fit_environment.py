@@ -1,0 +1,106 @@
+"""The environment light in the fit: a known room's light recovered from clips drawn exactly with
+it (pipeline/evaluate/exact_clips.py), `auto` switching itself off on a clip without one, and
+checkpoints from before it."""
+import json
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from pipeline.evaluate.exact_clips import AMBIENT, mottled_albedo, write_clip
+from pipeline.fit.checkpoint import CHECKPOINT_FILE, load_checkpoint
+from pipeline.fit.fitting import ENVIRONMENT_THRESHOLD, fit
+from pipeline.formats import environment_light as el
+from pipeline.formats import sequence_folder as seq
+from pipeline.handmodel.lbs import HandModel
+from pipeline.init import initialise_sequence
+from pipeline.render.renderer import Appearance, Light, RenderMesh, render
+from synth.motions import OPEN
+
+
+def room():
+    """Blue light from the camera's left, warm light from below (not where the point light is)."""
+    coefficients = np.zeros((el.COEFFICIENTS, 3))
+    coefficients[2] = -0.25 * np.array([0.3, 0.6, 1.0])
+    coefficients[0] = 0.15 * np.array([1.0, 0.7, 0.4])
+    coefficients[5] = 0.05
+    return coefficients
+
+
+@pytest.fixture(scope="module")
+def clips(tmp_path_factory):
+    root = tmp_path_factory.mktemp("environment")
+    for name, environment in (("room", room()), ("plain", None)):
+        write_clip(root / name, OPEN, frames=8, size=96, turn_degrees=25, environment=environment)
+    return root
+
+
+def recovered_environment(folder, steps=150):
+    """The environment light fitted to a clip with everything else known (its true surface,
+    albedo, point light and ambient): Adam on the L1 difference inside the masks."""
+    info = seq.read_sequence_info(folder)
+    gt = seq.read_ground_truth(folder / seq.GT_FILE)
+    model = HandModel.load("hand", "right", dtype=torch.float64)
+    vertices = torch.as_tensor(gt.vertices, dtype=torch.float64)
+    frames = torch.stack([torch.as_tensor(cv2.imread(str(seq.frame_path(folder, info, i)))[..., ::-1].copy(),
+                                          dtype=torch.float64) / 255 for i in range(info.frame_count)])
+    masks = torch.stack([torch.as_tensor(cv2.imread(str(seq.mask_path(folder, info, i)), cv2.IMREAD_GRAYSCALE) > 127)
+                         for i in range(info.frame_count)])[..., None]
+    environment = torch.zeros(el.COEFFICIENTS, 3, dtype=torch.float64, requires_grad=True)
+    optimiser = torch.optim.Adam([environment], lr=0.02)
+    mesh, K = RenderMesh.from_model_data(model.data, dtype=torch.float64), torch.as_tensor(np.asarray(info.K), dtype=torch.float64)
+    appearance = Appearance(torch.as_tensor(mottled_albedo()))
+    for _ in range(steps):
+        optimiser.zero_grad()
+        light = Light(torch.tensor([0.1, -0.2, 0.0], dtype=torch.float64), torch.tensor(AMBIENT, dtype=torch.float64),
+                      environment=environment)
+        rgb = render(vertices, mesh, K, info.height, info.width, outputs=("rgb",), appearance=appearance, light=light,
+                     antialiased=False)["rgb"]
+        loss = ((rgb - frames).abs() * masks).sum() / masks.sum()
+        loss.backward()
+        optimiser.step()
+    return environment.detach().numpy(), vertices, mesh
+
+
+def test_a_known_room_light_is_recovered_and_none_where_there_is_none(clips):
+    truth = room()
+    found, vertices, mesh = recovered_environment(clips / "room")
+    # compared where it acts: on the normals the clip shows (the coefficients of directions no
+    # frame faces are not determined)
+    from pipeline.render.shading import vertex_normals
+    normals = vertex_normals(vertices, mesh.faces).reshape(-1, 3).numpy()
+    facing = normals[normals[:, 2] < -0.2]
+    error = np.abs(el.shading_factor(facing, found) - el.shading_factor(facing, truth))
+    assert error.mean() < 0.01, error.mean()
+    assert np.abs(el.shading_factor(facing, truth)).mean() > 5 * error.mean()
+    assert el.relative_strength(found, AMBIENT) > ENVIRONMENT_THRESHOLD
+    plain, _, _ = recovered_environment(clips / "plain")
+    assert el.relative_strength(plain, AMBIENT) < 0.2 * ENVIRONMENT_THRESHOLD
+
+
+def test_auto_switches_the_environment_off_on_a_clip_without_one(clips, tmp_path):
+    initialise_sequence(clips / "plain", "gt-noise", log=lambda *a: None)
+    report = fit(clips / "plain", tmp_path / "fit", max_steps=40, progress="none", resolution=96, texture_size=64,
+                 environment="auto")
+    decision = report["environment"]["decision"]
+    assert decision["on"] is False and decision["relative_strength"] < ENVIRONMENT_THRESHOLD
+    assert report["environment"]["coefficients"] is None
+    assert json.loads((tmp_path / "fit" / "avatar.json").read_text())["light"]["environment"] is None
+    saved = load_checkpoint(tmp_path / "fit" / CHECKPOINT_FILE)
+    assert not bool(saved.avatar["environment_on"]) and not saved.avatar["environment"].any()
+
+
+def test_a_checkpoint_from_before_the_environment_light_reads_without_one(clips, tmp_path):
+    initialise_sequence(clips / "plain", "gt-noise", log=lambda *a: None)
+    fit(clips / "plain", tmp_path / "fit", max_steps=2, progress="none", resolution=96, texture_size=64)
+    path = tmp_path / "fit" / CHECKPOINT_FILE
+    saved = torch.load(path, weights_only=True)
+    for name in ("environment", "environment_on"):
+        del saved["avatar"][name]
+    del saved["settings"]["environment"]
+    saved["version"] = 4
+    torch.save(saved, path)
+    old = load_checkpoint(path)
+    assert old.version == 4 and old.settings.environment == "off"
+    assert not bool(old.avatar["environment_on"]) and old.avatar["environment"].shape == (el.COEFFICIENTS, 3)
