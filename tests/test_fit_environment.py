@@ -79,15 +79,34 @@ def test_a_known_room_light_is_recovered_and_none_where_there_is_none(clips):
     assert el.relative_strength(plain, AMBIENT) < 0.2 * ENVIRONMENT_THRESHOLD
 
 
-def test_auto_switches_the_environment_off_on_a_clip_without_one(clips, tmp_path):
-    initialise_sequence(clips / "plain", "gt-noise", log=lambda *a: None)
-    report = fit(clips / "plain", tmp_path / "fit", max_steps=40, progress="none", resolution=96, texture_size=64,
-                 environment="auto")
-    decision = report["environment"]["decision"]
-    assert decision["on"] is False and decision["relative_strength"] < ENVIRONMENT_THRESHOLD
-    assert report["environment"]["coefficients"] is None
-    assert json.loads((tmp_path / "fit" / "avatar.json").read_text())["light"]["environment"] is None
-    saved = load_checkpoint(tmp_path / "fit" / CHECKPOINT_FILE)
+@pytest.fixture(scope="module")
+def auto_fits(clips, tmp_path_factory):
+    """{clip name: report} of `fast` fits (capped at 200 steps a stage) with the environment auto."""
+    reports = {}
+    for name in ("room", "plain"):
+        initialise_sequence(clips / name, "gt-noise", log=lambda *a: None)
+        out = tmp_path_factory.mktemp("fits") / name
+        reports[name] = fit(clips / name, out, max_steps=200, progress="none", resolution=96, texture_size=64,
+                            environment="auto")
+        reports[name]["out"] = out
+    return reports
+
+
+def test_auto_keeps_a_coloured_room_light_and_switches_it_off_without_one(auto_fits):
+    room, plain = auto_fits["room"], auto_fits["plain"]
+    truth = el.colour_strength(room_light := globals()["room"](), AMBIENT)
+    decided = room["environment"]["decision"]
+    assert decided["on"] is True and 0.5 * truth < decided["colour_strength"] < 1.5 * truth, (decided, truth)
+    found = np.array(json.loads((room["out"] / "avatar.json").read_text())["light"]["environment"])
+    # its colour points the way the room's does: blue from the left, warm from below
+    colour = found - found.mean(1, keepdims=True)
+    true_colour = room_light - room_light.mean(1, keepdims=True)
+    assert (colour * true_colour).sum() / np.linalg.norm(colour) / np.linalg.norm(true_colour) > 0.8
+    decided = plain["environment"]["decision"]
+    assert decided["on"] is False and decided["colour_strength"] < ENVIRONMENT_THRESHOLD
+    assert plain["environment"]["coefficients"] is None
+    assert json.loads((plain["out"] / "avatar.json").read_text())["light"]["environment"] is None
+    saved = load_checkpoint(plain["out"] / CHECKPOINT_FILE)
     assert not bool(saved.avatar["environment_on"]) and not saved.avatar["environment"].any()
 
 

@@ -21,6 +21,13 @@ places, real skin's highlights). Solved pixel by pixel alike, that is baked into
 blotches (sharpness 3.6 times the truth's on a sun clip). So the solve is reweighted
 (solved_albedo): outlier pixels, texels the frames disagree on and texels few pixels show lean
 on the appearance stage's albedo, clean and well-seen texels follow the frames.
+
+With an environment light (formats/environment_light.py) the shading is S = S0 + g Y(n) c: the
+point light's part S0, the exposure gain g, the harmonics Y at each pixel's shading normal and
+the coefficients c. For a fixed albedo, c is a linear least-squares problem of 8 unknowns per
+colour over every pixel; the solve alternates the two (ENVIRONMENT_ROUNDS), so that a texel's
+albedo cannot take up the light's change across the frames that show it, as it can under Adam
+(the appearance stage moves both by small steps).
 docs/fidelity.md has the figures.
 """
 from __future__ import annotations
@@ -29,6 +36,8 @@ import dataclasses
 
 import torch
 
+from ..formats.environment_light import basis as environment_basis
+from ..formats.environment_light import relative_strength
 from ..render.renderer import render
 from ..render.texture import bilinear_texels
 
@@ -42,6 +51,8 @@ OUTLIER_SCALE = 3.0     # residuals beyond this many of the clip's noise standar
 REWEIGHTINGS = 3        # weighted solves after the first
 NOISE_FLOOR = 0.02      # the least noise (standard deviation) a pixel's colour is taken to have
 CG_ITERATIONS = 300
+ENVIRONMENT_ROUNDS = 4  # alternations of the environment light's solve and the albedo's before the reweighting
+ENVIRONMENT_RIDGE = 1e-3   # the environment solve's pull towards a uniform room, against its mean diagonal
 # the 3 x 3 stencil: offsets (row, column) to the neighbours a texel's equations couple it with
 STENCIL = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
 
@@ -49,16 +60,28 @@ STENCIL = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
 @dataclasses.dataclass
 class _Observations:
     """Every usable pixel of the fitted frames: its four texels (flat int32 indices (N, 4)) and
-    bilinear weights (N, 4), its shading (N, 3) and colour (N, 3)."""
+    bilinear weights (N, 4), its shading (N, 3) and colour (N, 3); with an environment light,
+    also the shading without it (N, 3, exposure gain included), the gain (N, 3) and the
+    harmonics at the pixel's shading normal (N, 8)."""
     texels: torch.Tensor
     weights: torch.Tensor
     shading: torch.Tensor
     colour: torch.Tensor
+    base: torch.Tensor | None = None
+    gain: torch.Tensor | None = None
+    basis: torch.Tensor | None = None
+
+    def albedo_at(self, albedo):
+        """(N, 3) the albedo each pixel sees (bilinear, as the renderer) for a (3, T, T) albedo."""
+        return (albedo.flatten(1)[:, self.texels] * self.weights).sum(-1).t()
 
     def predicted(self, albedo):
         """(N, 3) the colour each pixel shows for a (3, T, T) albedo."""
-        flat = albedo.flatten(1)
-        return self.shading * (flat[:, self.texels] * self.weights).sum(-1).t()
+        return self.shading * self.albedo_at(albedo)
+
+    def under_environment(self, coefficients):
+        """These observations with the shading of the environment light `coefficients` (8, 3)."""
+        return dataclasses.replace(self, shading=self.base + self.gain * (self.basis @ coefficients))
 
 
 @torch.no_grad()
@@ -84,46 +107,87 @@ def solved_albedo(problem, shadows, batch_size=4, supersample=1):
     if supersample > 1:
         finer = torch.nn.functional.interpolate(current[None], scale_factor=supersample, mode="bilinear",
                                                 align_corners=False)[0]
-        albedo, solved = _solved(problem, shadows, batch_size, finer)
+        albedo, solved, _ = _solved(problem, shadows, batch_size, finer)
         albedo = torch.nn.functional.avg_pool2d(albedo[None], supersample)[0]
         solved = torch.nn.functional.max_pool2d(solved[None, None].float(), supersample)[0, 0] > 0
         return albedo, solved
-    return _solved(problem, shadows, batch_size, current)
+    return _solved(problem, shadows, batch_size, current)[:2]
 
 
 def _solved(problem, shadows, batch_size, current):
+    """(albedo, solved, environment coefficients (8, 3) or None when the light has none)."""
     size = current.shape[-1]
     seen = _observations(problem, shadows, batch_size, size)
+    environment = problem.avatar.light().environment
+    environment = None if environment is None else environment.detach().clone()
     if not len(seen.colour):                       # no frame shows a usable pixel of the hand
-        return current.clone(), torch.zeros(current.shape[1:], dtype=torch.bool, device=current.device)
-    first = _NormalEquations(size, seen, torch.ones_like(seen.shading[:, 0]))
+        return current.clone(), torch.zeros(current.shape[1:], dtype=torch.bool, device=current.device), environment
+    uniform = torch.ones_like(seen.shading[:, 0])
+    first = _NormalEquations(size, seen, uniform)
     albedo, solved = first.solve(current, ANCHOR * first.data_weight())
+    if environment is not None:
+        for _ in range(ENVIRONMENT_ROUNDS):
+            environment = _solved_environment(seen, albedo, uniform)
+            seen = seen.under_environment(environment)
+            first = _NormalEquations(size, seen, uniform)
+            albedo, solved = first.solve(current, ANCHOR * first.data_weight())
     prior = None
     for _ in range(REWEIGHTINGS):
         weights, clip_variance = _consistency_weights(seen, albedo, size)
+        if environment is not None:
+            environment = _solved_environment(seen, albedo, weights)
+            seen = seen.under_environment(environment)
         prior = _prior_weight(seen, first.coverage, albedo, current, clip_variance) if prior is None else prior
         albedo, solved = _NormalEquations(size, seen, weights).solve(current, prior)
-    return albedo, solved
+    return albedo, solved, environment
+
+
+def _solved_environment(seen, albedo, pixel_weight):
+    """(8, 3) the environment light that explains the observations best for a fixed albedo:
+    per colour, weighted least squares over every pixel of I - S0 a = (g a Y) . c, with a ridge
+    of ENVIRONMENT_RIDGE of the mean diagonal (a uniform room where the frames say nothing)."""
+    at_pixel = seen.albedo_at(albedo)
+    columns = []
+    for channel in range(3):
+        design = (seen.gain[:, channel] * at_pixel[:, channel])[:, None] * seen.basis       # (N, 8)
+        target = seen.colour[:, channel] - seen.base[:, channel] * at_pixel[:, channel]
+        normal = design.t() @ (design * pixel_weight[:, None])
+        ridge = ENVIRONMENT_RIDGE * normal.diagonal().mean().clamp(min=1e-12)
+        normal = normal + ridge * torch.eye(len(normal), dtype=normal.dtype, device=normal.device)
+        columns.append(torch.linalg.solve(normal, design.t() @ (pixel_weight * target)))
+    return torch.stack(columns, dim=1)
 
 
 def _observations(problem, shadows, batch_size, size):
     avatar, clip = problem.avatar, problem.clip
     appearance = dataclasses.replace(avatar.appearance(), albedo=torch.ones_like(avatar.albedo))
     light = avatar.light(shadows)
+    environment = light.environment
+    outputs = ("rgb", "uv", "alpha") + (() if environment is None else ("shading_normal",))
     parts = []
     for batch in torch.arange(len(problem.frames), device=avatar.albedo.device).split(batch_size):
         vertices, _ = avatar.posed(batch)
-        images = render(vertices, avatar.mesh, clip.K, clip.height, clip.width, outputs=("rgb", "uv", "alpha"),
-                        appearance=appearance, light=light, antialiased=False)
-        shading = images["rgb"] * avatar.exposure_gain(batch) if problem.exposure_on else images["rgb"]
+        images = render(vertices, avatar.mesh, clip.K, clip.height, clip.width, outputs=outputs,
+                        appearance=appearance, light=dataclasses.replace(light, environment=None), antialiased=False)
+        gain = (avatar.exposure_gain(batch) if problem.exposure_on else torch.ones_like(avatar.exposure[batch])[:, None, None])
+        gain = gain.expand_as(images["rgb"])
+        base = images["rgb"] * gain
+        basis = None
+        shading = base
+        if environment is not None:
+            normal = images["shading_normal"]
+            basis = torch.stack(environment_basis(normal[..., 0], normal[..., 1], normal[..., 2]), dim=-1)
+            shading = base + gain * (basis @ environment)
         usable = problem.photometric_inside[batch][..., 0] & (images["alpha"][..., 0] > 0.5)   # as the photometric term
         if clip.valid is not None:
             usable = usable & (clip.valid[..., 0] > 0.5)
         usable = usable & (shading.min(-1).values > MIN_SHADING)
-        parts.append((images["uv"][usable], shading[usable], clip.images[batch][usable]))
-    uv, shading, colour = (torch.cat(column) for column in zip(*parts))
+        parts.append((images["uv"][usable], shading[usable], clip.images[batch][usable])
+                     + (() if environment is None else (base[usable], gain[usable], basis[usable])))
+    uv, shading, colour, *environment_parts = (torch.cat(column) for column in zip(*parts))
     rows, columns, weights = bilinear_texels(uv, size)
-    return _Observations((rows * size + columns).to(torch.int32), weights, shading, colour)   # int32: memory
+    return _Observations((rows * size + columns).to(torch.int32), weights, shading, colour,   # int32: memory
+                         *environment_parts)
 
 
 def _consistency_weights(seen, albedo, size):
@@ -249,13 +313,23 @@ def _conjugate_gradients(apply, rhs, x, inverse_diagonal, iterations, tolerance=
     return x
 
 
+@torch.no_grad()
 def solve_avatar_albedo(problem, shadows) -> dict:
-    """Replace the avatar's albedo by the solved one where the frames decide it (in place);
-    returns the share of the UV charts solved and the mean change there."""
-    albedo, solved = solved_albedo(problem, shadows)
+    """Replace the avatar's albedo (and environment light, when it has one) by the solved ones
+    where the frames decide them (in place); returns the share of the UV charts solved, the mean
+    change there, and the environment's relative strength before and after."""
+    avatar = problem.avatar
+    before = avatar.light().environment
+    before = None if before is None else before.detach().clone()
+    albedo, solved, environment = _solved(problem, shadows, 4, avatar.albedo.detach().clamp(0, 1))
     solved = solved & (problem.uv_mask.to(solved.device) > 0)
-    with torch.no_grad():
-        change = (albedo - problem.avatar.albedo.clamp(0, 1)).abs().mean(0)[solved]
-        problem.avatar.albedo.copy_(torch.where(solved[None], albedo, problem.avatar.albedo))
-    return {"solved_fraction": float(solved.sum() / (problem.uv_mask > 0).sum().clamp(min=1)),
-            "mean_change": float(change.mean()) if change.numel() else 0.0}
+    change = (albedo - avatar.albedo.clamp(0, 1)).abs().mean(0)[solved]
+    avatar.albedo.copy_(torch.where(solved[None], albedo, avatar.albedo))
+    figures = {"solved_fraction": float(solved.sum() / (problem.uv_mask > 0).sum().clamp(min=1)),
+               "mean_change": float(change.mean()) if change.numel() else 0.0}
+    if environment is not None:
+        avatar.environment.copy_(environment)
+        ambient = avatar.ambient.item()
+        figures["environment_strength"] = {"before": relative_strength(before.cpu().numpy(), ambient),
+                                           "after": relative_strength(environment.cpu().numpy(), ambient)}
+    return figures

@@ -20,7 +20,7 @@ import torch
 from ..formats.initial_estimate import read_initial_estimate
 from ..formats.sequence_folder import validate_sequence_folder
 from .albedo_solve import solve_avatar_albedo
-from ..formats.environment_light import relative_strength
+from ..formats.environment_light import colour_strength, relative_strength
 from .avatar import APPEARANCE, SHAPE, SWITCHES
 from .checkpoint import CHECKPOINT_FILE, CHECKPOINT_VERSION, Checkpoint, FitState, load_checkpoint, save_checkpoint
 from .budget import BudgetKeeper
@@ -29,16 +29,17 @@ from .frames import held_out_frames, select_frames, validation_frames
 from .outputs import write_outputs
 from .problem import FitError, FitProblem, build_problem
 from .progress import Progress
-from .schedule import ENVIRONMENT_DECIDED_IN, SHADOWS_DECIDED_IN, step_kind
+from .schedule import SHADOWS_DECIDED_IN, step_kind
 from .settings import settings_for
 from .stage_run import StageRun
 from .texture_fill import fill_avatar_albedo
 from .validation import Validator, restore_best
 
 SHADOW_AMBIENT_THRESHOLD = 0.75   # a fitted ambient ratio below this means a dominant light
-# a fitted environment light whose shading varies over the sphere by less than this share of the
-# ambient (environment_light.relative_strength) is switched off: the room lights the hand evenly
-ENVIRONMENT_THRESHOLD = 0.05
+# an `auto` environment light whose colour varies over the sphere by less than this share of the
+# ambient (environment_light.colour_strength) is switched off. Exact 8-frame clips (docs/fidelity.md):
+# 0.032 fitted on a room of 0.038, 0.007 on a clip without one
+ENVIRONMENT_THRESHOLD = 0.015
 KNOWN_APPEARANCE = SHAPE + APPEARANCE   # what a fit with known appearance takes from another fit, frozen
 # settings of what runs after the stages: a resumed fit may change them (they do not touch the checkpoint)
 AFTER_THE_STAGES = ("solve_albedo",)
@@ -150,7 +151,6 @@ def _run(setup: FitSetup, job, out, observers, started):
                 if result.event:
                     reporter.log(result.event)
                 _decide_shadows(problem, run, reporter)
-                _decide_environment(problem, run, reporter)
                 if validator is not None and validator.due(run.stage, state.step):
                     _validate(validator, state, run, index, estimate, reporter)
                 clock.observe(observers, "step", problem)
@@ -194,12 +194,16 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
             reporter.log(f"validation: the avatar of {best.stage} step {best.step} ({best.psnr:.2f} dB) is kept, "
                          f"better than the last check's {state.validation[-1]['psnr_mean']:.2f} dB")
             save()
-    if state.albedo_solve is None and problem.settings.solve_albedo and not problem.known_appearance:
+    solving = problem.settings.solve_albedo and not problem.known_appearance
+    if state.albedo_solve is None and solving:
         state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on)
         reporter.log(f"albedo solved from the frames on the final geometry and light: "
                      f"{state.albedo_solve['solved_fraction']:.0%} of the texels "
-                     f"(mean change {state.albedo_solve['mean_change']:.3f})")
+                     f"(mean change {state.albedo_solve['mean_change']:.3f})"
+                     + (" with the environment light" if "environment_strength" in state.albedo_solve else ""))
+        _decide_environment(problem, state, reporter, solved=True)
         save()
+    _decide_environment(problem, state, reporter, solved=False)     # without an albedo solve: as the stages left it
     if state.texture_fill is None and not problem.known_appearance:
         state.texture_fill = fill_avatar_albedo(problem.avatar, problem.clip)
         reporter.log(f"albedo: {state.texture_fill['unseen_fraction']:.0%} of the texels never seen, filled "
@@ -276,21 +280,25 @@ def _decide_shadows(problem, run, reporter):
     reporter.log(f"shadows auto: fitted ambient ratio {ambient:.2f} -> self-shadowing {'on' if decision.on else 'off'}")
 
 
-def _decide_environment(problem, run, reporter):
-    """`auto` environment light: fitted from the start of the appearance, kept half-way through
-    ENVIRONMENT_DECIDED_IN only if it lights the hand unevenly enough (ENVIRONMENT_THRESHOLD);
-    otherwise switched off, so that the rest of the fit does not pay for it."""
-    state = run.state
-    if (state.environment is not None or problem.settings.environment != "auto"
-            or run.stage.kind is not ENVIRONMENT_DECIDED_IN or state.step < run.stage.steps // 2):
+def _decide_environment(problem, state, reporter, solved):
+    """`auto` environment light, decided once after the stages (after the albedo solve, which
+    solves the light with the albedo, when `solved`): kept where its colour varies with direction
+    by at least ENVIRONMENT_THRESHOLD of the ambient (a white point light and an ambient ratio
+    cannot explain that; its colourless part they largely can), else switched off, and the
+    albedo solved again without it."""
+    if state.environment is not None or problem.settings.environment != "auto":
         return
     avatar = problem.avatar
-    strength = relative_strength(avatar.environment.detach().cpu().numpy(), avatar.ambient.item())
-    on = strength >= ENVIRONMENT_THRESHOLD
-    avatar.switch_environment(on)
-    state.environment = {"on": on, "relative_strength": strength}
-    reporter.log(f"environment light auto: it varies by {100 * strength:.1f}% of the ambient over the sphere -> "
-                 f"{'on' if on else 'off'}")
+    coefficients, ambient = avatar.environment.detach().cpu().numpy(), avatar.ambient.item()
+    colour, strength = colour_strength(coefficients, ambient), relative_strength(coefficients, ambient)
+    on = colour >= ENVIRONMENT_THRESHOLD
+    state.environment = {"on": on, "colour_strength": colour, "relative_strength": strength}
+    reporter.log(f"environment light auto: its colour varies by {100 * colour:.1f}% of the ambient over the sphere "
+                 f"(all of it {100 * strength:.1f}%) -> {'on' if on else 'off'}")
+    if not on:
+        avatar.switch_environment(False)
+        if solved:
+            state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on)
 
 
 class _CheckpointSaver:

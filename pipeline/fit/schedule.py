@@ -65,7 +65,6 @@ class StageSpec:
 
 FIT_ORDER = (StageKind.ALIGN, StageKind.GEOMETRY, StageKind.JOINT, StageKind.APPEARANCE)
 SHADOWS_DECIDED_IN = StageKind.JOINT   # `auto` self-shadowing is decided half-way through this stage
-ENVIRONMENT_DECIDED_IN = StageKind.JOINT   # and so is the `auto` environment light
 
 
 @dataclasses.dataclass(frozen=True)

@@ -55,6 +55,14 @@ def relative_strength(coefficients, ambient) -> float:
     return math.sqrt(mean_square) / max(float(ambient), 1e-6)
 
 
+def colour_strength(coefficients, ambient) -> float:
+    """relative_strength of the environment's colour alone (each coefficient less its mean over
+    the colours): what a white point light and an ambient ratio cannot explain, as a room whose
+    light has different colours from different sides does."""
+    coefficients = np.asarray(coefficients, dtype=np.float64)
+    return relative_strength(coefficients - coefficients.mean(1, keepdims=True), ambient)
+
+
 def radiance(directions, coefficients, ambient):
     """(N, 3) the radiance of a world that lights a Lambertian surface as the fit's ambient and
     environment do: a + sum_k c_k / (A_l / pi) Y_k(d) at unit directions `directions` (N, 3)

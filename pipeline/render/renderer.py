@@ -23,7 +23,7 @@ from .antialias import antialias as reference_antialias
 from .interpolate import to_image
 from .texture import sample_texture
 
-OUTPUTS = ("alpha", "rgb", "depth", "normal", "albedo", "uv")
+OUTPUTS = ("alpha", "rgb", "depth", "normal", "albedo", "uv", "shading_normal")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -102,13 +102,16 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
     points (B, V, 3) vertices in the camera frame (OpenCV axes, metres); K (3, 3) or (B, 3, 3).
     Returns {name: (B, H, W, C)}: alpha (C=1), rgb (3, lit colour over `background`, a (3,)
     tensor or (B, H, W, 3) image, default black), depth (1, +inf where empty), normal (3,
-    camera frame), albedo (3, unlit), uv (2, the texture coordinates seen, v up). alpha and rgb
+    camera frame), albedo (3, unlit), uv (2, the texture coordinates seen, v up), shading_normal
+    (3, the normal the light sees: the normal map's, camera frame; only with rgb). alpha and rgb
     carry silhouette gradients when antialiased. fused=False takes the reference primitives
     (the same images and gradients, slower: fused.py).
     """
     unknown = set(outputs) - set(OUTPUTS)
     if unknown:
         raise ValueError(f"unknown render outputs {sorted(unknown)}; choose from {OUTPUTS}")
+    if "shading_normal" in outputs and "rgb" not in outputs:
+        raise ValueError("the shading_normal output comes with rgb only")
     ops = FUSED if fused else REFERENCE
     faces = mesh.faces
     rast = ops.rasterize(points.detach(), faces, K, height, width)
@@ -150,6 +153,8 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
         else:
             normal = torch.nn.functional.normalize(smooth_normals, dim=-1, eps=1e-12)
         colour = _lit_colour(ops, points, faces, frags, position, albedo, normal, light)
+        if "shading_normal" in outputs:
+            result["shading_normal"] = to_image(normal, frags)
         layers.append(("rgb", colour, _background(background, points, height, width)))
     if "alpha" in outputs:
         ones = torch.ones(len(frags.pixel), 1, dtype=points.dtype, device=points.device)
