@@ -56,10 +56,13 @@ def main(argv=None):
             for setting in ("auto", "off"):
                 out = args.out / clip_name / f"{setting}_seed{seed}"
                 result_file = out / "bench_environment.json"
-                if not result_file.is_file():
+                if not result_file.is_file():      # a finished fit is kept; its held-out evaluation runs again
                     started = time.perf_counter()
-                    report = fit(clip, out, max_steps=args.steps, progress="none", resolution=args.size,
-                                 texture_size=64, environment=setting, seed=seed, hold_out_every=5)
+                    if (out / "report.json").is_file():
+                        report = json.loads((out / "report.json").read_text())
+                    else:
+                        report = fit(clip, out, max_steps=args.steps, progress="none", resolution=args.size,
+                                     texture_size=64, environment=setting, seed=seed, hold_out_every=5)
                     held_out = evaluate_held_out(out, clip, protocol="neighbours")
                     decision = report["environment"]["decision"] or {}
                     result_file.write_text(json.dumps({
@@ -69,8 +72,8 @@ def main(argv=None):
                 result = json.loads(result_file.read_text())
                 rows.append((clip_name, setting, seed, truth, result))
                 strength = "" if result["colour_strength"] is None else f"{result['colour_strength']:.3f}"
-                print(f"{clip_name:6s} {setting:5s} seed {seed}: on {str(result['on']):5s} colour strength {strength:6s} "
-                      f"(truth {truth:.3f}) fitted PSNR {result['fitted_psnr']:.2f} held-out PSNR "
+                print(f"{clip_name:6s} {setting:5s} seed {seed}: on {str(result['on']):5s} colour strength "
+                      f"{strength:6s} (truth {truth:.3f}) fitted PSNR {result['fitted_psnr']:.2f} held-out PSNR "
                       f"{result['held_out_psnr']:.2f} dB, {result['seconds']:.0f} s", flush=True)
     print("\nmean (spread) over seeds")
     for clip_name in ("room", "plain"):
@@ -78,7 +81,8 @@ def main(argv=None):
             picked = [r for c, s, _, _, r in rows if c == clip_name and s == setting]
             for figure in ("fitted_psnr", "held_out_psnr"):
                 values = np.array([r[figure] for r in picked])
-                print(f"{clip_name:6s} {setting:5s} {figure:14s} {values.mean():.2f} ({values.min():.2f}-{values.max():.2f})")
+                print(f"{clip_name:6s} {setting:5s} {figure:14s} {values.mean():.2f} "
+                      f"({values.min():.2f}-{values.max():.2f})")
     return 0
 
 

@@ -2,13 +2,15 @@
 
     .venv/bin/python benchmarks/bench_real_footage.py VIDEO [--work DIR] [--preset fast]
         [--hold-out-every 10] [--size 448] [--max-frames N] [--pictures DIR] [--threads 1]
+        [--environment auto|on|off]
 
 1. `harp import-video VIDEO` without masks (MediaPipe landmarks + GrabCut make them),
 2. `harp init` (MediaPipe keypoints, the initial fit),
 3. `harp fit --hold-out-every N` with the preset,
 4. `harp evaluate`: the held-out frames fitted in pose and light, scored against the built-in
    masks and the frames (PSNR / L1 / MS-SSIM in the mask, silhouette IoU).
-Prints wall time of each step and the figures; writes DIR/bench_real_footage.json. With
+Prints wall time of each step and the figures; writes bench_real_footage.json into the avatar
+folder (DIR/avatar_PRESET, or DIR/avatar_PRESET_environment_SETTING with --environment). With
 `--pictures DIR2`: DIR2/real_masks.png (masks over frames), real_fit_grid.png (fitted frames),
 real_held_out_grid.png (held-out frames). Finished steps are kept: rerun to resume.
 Measured on the MediaPipe sample video (see docs/real_footage.md).
@@ -60,12 +62,16 @@ def main(argv=None):
     parser.add_argument("--max-frames", type=int, default=None)
     parser.add_argument("--pictures", default=None, help="also copy the pictures here (e.g. docs/)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1, pinned runs)")
+    parser.add_argument("--environment", choices=("auto", "on", "off"), default=None,
+                        help="the fit's environment light (default: the fit's default); its own avatar folder")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
-    sequence, avatar = work / "sequence", work / f"avatar_{args.preset}"
-    figures = {"video": str(args.video), "preset": args.preset, "threads": args.threads}
+    sequence = work / "sequence"
+    avatar = work / (f"avatar_{args.preset}" + (f"_environment_{args.environment}" if args.environment else ""))
+    figures = {"video": str(args.video), "preset": args.preset, "threads": args.threads,
+               "environment": args.environment}
 
     if not (sequence / seq.SEQUENCE_FILE).is_file():
         timed(figures, "import", lambda: import_video(args.video, None, sequence, size=args.size,
@@ -77,7 +83,8 @@ def main(argv=None):
         timed(figures, "init", lambda: initialise_sequence(sequence, "mediapipe", log=log))
     if not (avatar / "report.json").is_file():
         timed(figures, "fit", lambda: fit(sequence, avatar, preset=args.preset, progress="bar",
-                                          hold_out_every=args.hold_out_every, device="cpu"))
+                                          hold_out_every=args.hold_out_every, device="cpu",
+                                          environment=args.environment))
     report = read_report(avatar)
     evaluation = timed(figures, "evaluate", lambda: evaluate_fit(avatar, sequence, device="cpu", progress="bar"))
 
@@ -92,7 +99,8 @@ def main(argv=None):
                   "iou_mean": held["silhouette_iou_mean"], "iou_min": float(np.min(held["silhouette_iou"])),
                   "l1_mean": held["l1_mean"], "ms_ssim_mean": held.get("ms_ssim_mean")})
     figures["fit_seconds_reported"] = report.get("total_seconds")
-    (work / "bench_real_footage.json").write_text(json.dumps(figures, indent=2))
+    figures["environment_decision"] = report.get("environment", {}).get("decision")
+    (avatar / "bench_real_footage.json").write_text(json.dumps(figures, indent=2))
     print(json.dumps(figures, indent=2))
     if args.pictures:
         target = Path(args.pictures)

@@ -12,6 +12,10 @@ PRESETS = [("fast", "Fast", "About 6 min for a 150-frame clip on one CPU core; t
                             "not better than Fast")]
 SHADOWS = [("auto", "Auto", "Decided from the fitted light: on under a dominant light"),
            ("on", "On", "Self-shadowing always"), ("off", "Off", "No self-shadowing (soft, even light)")]
+ENVIRONMENTS = [("auto", "Auto", "A room's light from every side, kept where its colour changes with direction "
+                                 "(a white point light cannot explain that)"),
+                ("on", "On", "Always fit a room's light beside the point light"),
+                ("off", "Off", "One point light and an even ambient light (HARP's light)")]
 SIDES = [("auto", "Auto", "Tell from the footage (MediaPipe)"), ("right", "Right", ""), ("left", "Left", "")]
 RIG_KINDS = [("mixamo", "Mixamo", "Bones named mixamorig:RightHandIndex1 ..."),
              ("rigify", "Rigify", "A generated Rigify rig: the hand's IK control hand_ik.R, the fingers' FK controls "
@@ -33,6 +37,7 @@ class HarpSettings(bpy.types.PropertyGroup):
     sequence: StringProperty(name="Sequence", subtype="DIR_PATH", description="Sequence folder (written by Import)")
     preset: EnumProperty(name="Preset", items=PRESETS, default="fast")
     shadows: EnumProperty(name="Shadows", items=SHADOWS, default="auto")
+    environment: EnumProperty(name="Room light", items=ENVIRONMENTS, default="auto")
     init: EnumProperty(name="Start from", items=INITS, default="mediapipe")
     avatar: StringProperty(name="Avatar", subtype="DIR_PATH", description="Avatar folder (written by Fit)")
     pack_on_bind: BoolProperty(name="Pack images", default=False,

@@ -179,8 +179,8 @@ def build_parser():
                           "footage's background brightness changes over the clip (a phone's automatic exposure)")
     fit.add_argument("--environment", choices=("auto", "on", "off"), default=None,
                      help="an environment light (a room's light from every side, spherical harmonics) beside the "
-                          "point light: off (default: not yet shown to help, docs/fidelity.md), on, or auto (kept "
-                          "when it lights the hand unevenly)")
+                          "point light: auto (default) keeps it where its colour changes with direction (a white "
+                          "point light cannot explain that), on, or off (docs/fidelity.md)")
     fit.add_argument("--resume", action="store_true", help="continue from the avatar folder's checkpoint")
     fit.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar", help=PROGRESS_HELP)
     fit.add_argument("--threads", type=int, metavar="N", help=THREADS_HELP)

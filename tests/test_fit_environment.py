@@ -49,7 +49,8 @@ def recovered_environment(folder, steps=150):
                          for i in range(info.frame_count)])[..., None]
     environment = torch.zeros(el.COEFFICIENTS, 3, dtype=torch.float64, requires_grad=True)
     optimiser = torch.optim.Adam([environment], lr=0.02)
-    mesh, K = RenderMesh.from_model_data(model.data, dtype=torch.float64), torch.as_tensor(np.asarray(info.K), dtype=torch.float64)
+    mesh = RenderMesh.from_model_data(model.data, dtype=torch.float64)
+    K = torch.as_tensor(np.asarray(info.K), dtype=torch.float64)
     appearance = Appearance(torch.as_tensor(mottled_albedo()))
     for _ in range(steps):
         optimiser.zero_grad()
@@ -93,15 +94,16 @@ def auto_fits(clips, tmp_path_factory):
 
 
 def test_auto_keeps_a_coloured_room_light_and_switches_it_off_without_one(auto_fits):
-    room, plain = auto_fits["room"], auto_fits["plain"]
-    truth = el.colour_strength(room_light := globals()["room"](), AMBIENT)
-    decided = room["environment"]["decision"]
-    assert decided["on"] is True and 0.5 * truth < decided["colour_strength"] < 1.5 * truth, (decided, truth)
-    found = np.array(json.loads((room["out"] / "avatar.json").read_text())["light"]["environment"])
+    """The colour the room adds is recovered (strength and direction); a clip without one gets none."""
+    truth = room()
+    truth_strength = el.colour_strength(truth, AMBIENT)
+    decided = auto_fits["room"]["environment"]["decision"]
+    assert decided["on"] is True and 0.5 * truth_strength < decided["colour_strength"] < 1.5 * truth_strength, decided
+    found = np.array(json.loads((auto_fits["room"]["out"] / "avatar.json").read_text())["light"]["environment"])
     # its colour points the way the room's does: blue from the left, warm from below
-    colour = found - found.mean(1, keepdims=True)
-    true_colour = room_light - room_light.mean(1, keepdims=True)
+    colour, true_colour = (c - c.mean(1, keepdims=True) for c in (found, truth))
     assert (colour * true_colour).sum() / np.linalg.norm(colour) / np.linalg.norm(true_colour) > 0.8
+    plain = auto_fits["plain"]
     decided = plain["environment"]["decision"]
     assert decided["on"] is False and decided["colour_strength"] < ENVIRONMENT_THRESHOLD
     assert plain["environment"]["coefficients"] is None

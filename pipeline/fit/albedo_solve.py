@@ -51,6 +51,7 @@ OUTLIER_SCALE = 3.0     # residuals beyond this many of the clip's noise standar
 REWEIGHTINGS = 3        # weighted solves after the first
 NOISE_FLOOR = 0.02      # the least noise (standard deviation) a pixel's colour is taken to have
 CG_ITERATIONS = 300
+SOLVE_BATCH = 4         # frames rendered at once to gather the observations
 ENVIRONMENT_ROUNDS = 4  # alternations of the environment light's solve and the albedo's before the reweighting
 ENVIRONMENT_RIDGE = 1e-3   # the environment solve's pull towards a uniform room, against its mean diagonal
 # the 3 x 3 stencil: offsets (row, column) to the neighbours a texel's equations couple it with
@@ -85,7 +86,7 @@ class _Observations:
 
 
 @torch.no_grad()
-def solved_albedo(problem, shadows, batch_size=4, supersample=1):
+def solved_albedo(problem, shadows, batch_size=SOLVE_BATCH, supersample=1):
     """((3, T, T) albedo in [0, 1] that explains the problem's frames best with its avatar's
     current geometry, light and exposure gains, (T, T) bool: texels the frames decide).
 
@@ -169,7 +170,7 @@ def _observations(problem, shadows, batch_size, size):
         vertices, _ = avatar.posed(batch)
         images = render(vertices, avatar.mesh, clip.K, clip.height, clip.width, outputs=outputs,
                         appearance=appearance, light=dataclasses.replace(light, environment=None), antialiased=False)
-        gain = (avatar.exposure_gain(batch) if problem.exposure_on else torch.ones_like(avatar.exposure[batch])[:, None, None])
+        gain = avatar.exposure_gain(batch) if problem.exposure_on else torch.ones_like(avatar.exposure_gain(batch))
         gain = gain.expand_as(images["rgb"])
         base = images["rgb"] * gain
         basis = None
@@ -321,7 +322,7 @@ def solve_avatar_albedo(problem, shadows) -> dict:
     avatar = problem.avatar
     before = avatar.light().environment
     before = None if before is None else before.detach().clone()
-    albedo, solved, environment = _solved(problem, shadows, 4, avatar.albedo.detach().clamp(0, 1))
+    albedo, solved, environment = _solved(problem, shadows, SOLVE_BATCH, avatar.albedo.detach().clamp(0, 1))
     solved = solved & (problem.uv_mask.to(solved.device) > 0)
     change = (albedo - avatar.albedo.clamp(0, 1)).abs().mean(0)[solved]
     avatar.albedo.copy_(torch.where(solved[None], albedo, avatar.albedo))

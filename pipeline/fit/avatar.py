@@ -12,9 +12,10 @@ linear-blend-skinning rig (Blender's Armature modifier, a game engine) animates:
 folder's rest mesh posed by the armature reproduces every fitted frame. It is also cheaper:
 the normals are taken once per step, not once per frame.
 Per frame: global rotation, translation, joint rotations (the wrist's only in hand+forearm
-mode), and the camera's exposure (a colour gain; fitted only when the clip needs it). Shared: shape, displacements, albedo texture, normal map, light position, ambient ratio,
-and the environment light (spherical harmonics, formats/environment_light.py; in use only while
-the `environment_on` switch is set).
+mode), and the camera's exposure (a colour gain; fitted only when the clip needs it). Shared:
+shape, displacements, albedo texture, normal map, light position, ambient ratio, and the
+environment light (spherical harmonics, formats/environment_light.py; in use only while the
+`environment_on` switch is set).
 """
 from __future__ import annotations
 
