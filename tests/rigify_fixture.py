@@ -28,7 +28,11 @@ def fitted_rigify_rig(bound):
         bones[name].head, bones[name].tail = Vector(start), Vector(end)
 
     wrist, elbow = head["wrist"], head["forearm"]
-    place("upper_arm.R", elbow + 0.28 * (elbow - wrist) / np.linalg.norm(elbow - wrist), elbow)
+    along = (elbow - wrist) / np.linalg.norm(elbow - wrist)
+    # the elbow bent a little, as a metarig's is: Rigify takes the arm's pole from the bend, and a
+    # straight arm leaves it undefined (its generation fails on some fitted shapes)
+    bend = np.cross(along, [0.0, 0.0, 1.0] if abs(along[2]) < 0.9 else [1.0, 0.0, 0.0])
+    place("upper_arm.R", elbow + 0.28 * along + 0.02 * bend / np.linalg.norm(bend), elbow)
     place("forearm.R", elbow, wrist)
     place("hand.R", wrist, 0.5 * (wrist + head["middle1"]))
     for finger, stem, tip in (("index", "f_index", 8), ("middle", "f_middle", 12), ("ring", "f_ring", 16),
