@@ -19,21 +19,12 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pipeline.evaluate.exact_clips import AMBIENT, write_clip  # noqa: E402
+from pipeline.evaluate.exact_clips import AMBIENT, coloured_room, write_clip  # noqa: E402
 from pipeline.evaluate.held_out import evaluate_held_out  # noqa: E402
 from pipeline.fit.fitting import fit  # noqa: E402
 from pipeline.formats import environment_light as el  # noqa: E402
 from pipeline.init import initialise_sequence  # noqa: E402
 from synth.motions import OPEN  # noqa: E402
-
-
-def room():
-    """The room of tests/test_fit_environment.py."""
-    coefficients = np.zeros((el.COEFFICIENTS, 3))
-    coefficients[2] = -0.25 * np.array([0.3, 0.6, 1.0])
-    coefficients[0] = 0.15 * np.array([1.0, 0.7, 0.4])
-    coefficients[5] = 0.05
-    return coefficients
 
 
 def main(argv=None):
@@ -46,7 +37,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     rows = []
-    for clip_name, environment in (("room", room()), ("plain", None)):
+    for clip_name, environment in (("room", coloured_room()), ("plain", None)):
         clip = args.out / clip_name / "clip"
         if not (clip / "sequence.json").is_file():
             write_clip(clip, OPEN, frames=args.frames, size=args.size, turn_degrees=20, environment=environment)

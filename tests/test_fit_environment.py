@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.evaluate.exact_clips import AMBIENT, mottled_albedo, write_clip
+from pipeline.evaluate.exact_clips import AMBIENT, coloured_room, mottled_albedo, write_clip
 from pipeline.fit.checkpoint import CHECKPOINT_FILE, load_checkpoint
 from pipeline.fit.fitting import ENVIRONMENT_THRESHOLD, fit
 from pipeline.formats import environment_light as el
@@ -19,19 +19,10 @@ from pipeline.render.renderer import Appearance, Light, RenderMesh, render
 from synth.motions import OPEN
 
 
-def room():
-    """Blue light from the camera's left, warm light from below (not where the point light is)."""
-    coefficients = np.zeros((el.COEFFICIENTS, 3))
-    coefficients[2] = -0.25 * np.array([0.3, 0.6, 1.0])
-    coefficients[0] = 0.15 * np.array([1.0, 0.7, 0.4])
-    coefficients[5] = 0.05
-    return coefficients
-
-
 @pytest.fixture(scope="module")
 def clips(tmp_path_factory):
     root = tmp_path_factory.mktemp("environment")
-    for name, environment in (("room", room()), ("plain", None)):
+    for name, environment in (("room", coloured_room()), ("plain", None)):
         write_clip(root / name, OPEN, frames=8, size=96, turn_degrees=25, environment=environment)
     return root
 
@@ -65,7 +56,7 @@ def recovered_environment(folder, steps=150):
 
 
 def test_a_known_room_light_is_recovered_and_none_where_there_is_none(clips):
-    truth = room()
+    truth = coloured_room()
     found, vertices, mesh = recovered_environment(clips / "room")
     # compared where it acts: on the normals the clip shows (the coefficients of directions no
     # frame faces are not determined)
@@ -95,7 +86,7 @@ def auto_fits(clips, tmp_path_factory):
 
 def test_auto_keeps_a_coloured_room_light_and_switches_it_off_without_one(auto_fits):
     """The colour the room adds is recovered (strength and direction); a clip without one gets none."""
-    truth = room()
+    truth = coloured_room()
     truth_strength = el.colour_strength(truth, AMBIENT)
     decided = auto_fits["room"]["environment"]["decision"]
     assert decided["on"] is True and 0.5 * truth_strength < decided["colour_strength"] < 1.5 * truth_strength, decided

@@ -27,6 +27,17 @@ TURN_DEGREES = 12.0      # rotation about the hand's long axis between frames
 AMBIENT = 0.6
 
 
+def coloured_room():
+    """(8, 3) an environment light (formats/environment_light.py) whose colour changes with
+    direction: blue light from the camera's left, warm light from below (not where the point
+    light is), a little more around the camera's axis. Colour strength 0.038 at AMBIENT."""
+    coefficients = np.zeros((environment_light.COEFFICIENTS, 3))
+    coefficients[2] = -0.25 * np.array([0.3, 0.6, 1.0])      # Y ~ x: the left (-x) brighter and bluer
+    coefficients[0] = 0.15 * np.array([1.0, 0.7, 0.4])       # Y ~ y: from below (+y, OpenCV's down), warm
+    coefficients[5] = 0.05                                    # Y ~ 3 z^2 - 1
+    return coefficients
+
+
 def hyperextended_pose():
     """Open hand bent backwards 10 - 20 degrees past the joint limits (a stress case): MCPs 45
     degrees dorsal (limit 30), PIPs 20 (limit 5), DIPs 25 (limit 15), thumb IP 35 (limit 20)."""
