@@ -189,7 +189,6 @@ def _exposure(batch):
     return losses.exposure_loss(avatar.exposure, avatar.frame_numbers, *batch.problem.exposure_measured)
 
 
-
 # ours: the environment light's coefficients held towards none (a uniform room), so that what the light
 # need not explain stays in the albedo only where the frames agree on it; on only while the light is in use
 @_term("environment", 0.1, _APPEARANCE,
