@@ -37,8 +37,8 @@ from .validation import Validator, restore_best
 
 SHADOW_AMBIENT_THRESHOLD = 0.75   # a fitted ambient ratio below this means a dominant light
 # an `auto` environment light whose colour varies over the sphere by less than this share of the
-# ambient (environment_light.colour_strength) is switched off. Exact 8-frame clips (docs/fidelity.md):
-# 0.032 fitted on a room of 0.038, 0.007 on a clip without one
+# ambient (environment_light.colour_strength) is switched off. Exact clips over 3 seeds (docs/fidelity.md):
+# 0.035 fitted on a room of 0.038, 0.002 on a clip without one; the demo 0.003, the MediaPipe sample video 0.013
 ENVIRONMENT_THRESHOLD = 0.015
 KNOWN_APPEARANCE = SHAPE + APPEARANCE   # what a fit with known appearance takes from another fit, frozen
 # settings of what runs after the stages: a resumed fit may change them (they do not touch the checkpoint)
