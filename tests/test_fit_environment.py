@@ -103,6 +103,15 @@ def test_auto_keeps_a_coloured_room_light_and_switches_it_off_without_one(auto_f
     assert not bool(saved.avatar["environment_on"]) and not saved.avatar["environment"].any()
 
 
+def test_auto_leaves_it_off_on_too_few_frames(clips, tmp_path):
+    """Four frames of the room: too few views to tell its light from the albedo."""
+    initialise_sequence(clips / "room", "gt-noise", log=lambda *a: None)
+    report = fit(clips / "room", tmp_path / "fit", max_steps=20, progress="none", resolution=96, texture_size=64,
+                 environment="auto", max_frames=4)
+    assert len(report["frames"]) == 4 and report["environment"]["decision"]["on"] is False
+    assert report["environment"]["coefficients"] is None
+
+
 def test_a_checkpoint_from_before_the_environment_light_reads_without_one(clips, tmp_path):
     initialise_sequence(clips / "plain", "gt-noise", log=lambda *a: None)
     fit(clips / "plain", tmp_path / "fit", max_steps=2, progress="none", resolution=96, texture_size=64)

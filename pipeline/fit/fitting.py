@@ -40,6 +40,9 @@ SHADOW_AMBIENT_THRESHOLD = 0.75   # a fitted ambient ratio below this means a do
 # ambient (environment_light.colour_strength) is switched off. Exact clips over 3 seeds (docs/fidelity.md):
 # 0.035 fitted on a room of 0.038, 0.002 on a clip without one; the demo 0.003, the MediaPipe sample video 0.013
 ENVIRONMENT_THRESHOLD = 0.015
+# and on fewer fitted frames than this it stays off: a few views cannot tell a room's light from the albedo (the
+# add-on tests' 4-frame, 12-step fit of a clip under a white world found a "room" of colour strength 0.044)
+ENVIRONMENT_MIN_FRAMES = 8
 KNOWN_APPEARANCE = SHAPE + APPEARANCE   # what a fit with known appearance takes from another fit, frozen
 # settings of what runs after the stages: a resumed fit may change them (they do not touch the checkpoint)
 AFTER_THE_STAGES = ("solve_albedo",)
@@ -284,17 +287,19 @@ def _decide_environment(problem, state, reporter, solved):
     """`auto` environment light, decided once after the stages (after the albedo solve, which
     solves the light with the albedo, when `solved`): kept where its colour varies with direction
     by at least ENVIRONMENT_THRESHOLD of the ambient (a white point light and an ambient ratio
-    cannot explain that; its colourless part they largely can), else switched off, and the
-    albedo solved again without it."""
+    cannot explain that; its colourless part they largely can) over at least
+    ENVIRONMENT_MIN_FRAMES fitted frames, else switched off, and the albedo solved again without it."""
     if state.environment is not None or problem.settings.environment != "auto":
         return
     avatar = problem.avatar
     coefficients, ambient = avatar.environment.detach().cpu().numpy(), avatar.ambient.item()
     colour, strength = colour_strength(coefficients, ambient), relative_strength(coefficients, ambient)
-    on = colour >= ENVIRONMENT_THRESHOLD
+    enough_views = len(problem.frames) >= ENVIRONMENT_MIN_FRAMES
+    on = colour >= ENVIRONMENT_THRESHOLD and enough_views
     state.environment = {"on": on, "colour_strength": colour, "relative_strength": strength}
     reporter.log(f"environment light auto: its colour varies by {100 * colour:.1f}% of the ambient over the sphere "
-                 f"(all of it {100 * strength:.1f}%) -> {'on' if on else 'off'}")
+                 f"(all of it {100 * strength:.1f}%) -> {'on' if on else 'off'}"
+                 + ("" if enough_views else f" (fewer than {ENVIRONMENT_MIN_FRAMES} frames fitted: too few views)"))
     if not on:
         avatar.switch_environment(False)
         if solved:
