@@ -36,9 +36,9 @@ import dataclasses
 
 import torch
 
-from ..formats.environment_light import basis as environment_basis
 from ..formats.environment_light import relative_strength
 from ..render.renderer import render
+from ..render.shading import environment_basis_values
 from ..render.texture import bilinear_texels
 
 MIN_COVERAGE = 1.0      # bilinear weight (about one pixel's worth) a texel needs to be solved
@@ -176,8 +176,7 @@ def _observations(problem, shadows, batch_size, size):
         basis = None
         shading = base
         if environment is not None:
-            normal = images["shading_normal"]
-            basis = torch.stack(environment_basis(normal[..., 0], normal[..., 1], normal[..., 2]), dim=-1)
+            basis = environment_basis_values(images["shading_normal"])
             shading = base + gain * (basis @ environment)
         usable = problem.photometric_inside[batch][..., 0] & (images["alpha"][..., 0] > 0.5)   # as the photometric term
         if clip.valid is not None:

@@ -67,9 +67,13 @@ def lit_colour(albedo, normal, position, light_position, ambient, visibility=Non
     return shade(albedo, normal, to_light, ambient, visibility)
 
 
+def environment_basis_values(normal):
+    """(..., 8) the environment light's harmonics Y_k at unit normals (..., 3) (camera frame;
+    formats/environment_light.py)."""
+    return torch.stack(environment_basis(normal[..., 0], normal[..., 1], normal[..., 2]), dim=-1)
+
+
 def environment_shading(normal, coefficients):
     """(N, 3) the environment light's share of the shading factor, sum_k c_k Y_k(n), of unit
-    normals (N, 3) (camera frame) under its spherical-harmonic coefficients (8, 3)
-    (formats/environment_light.py)."""
-    values = torch.stack(environment_basis(normal[:, 0], normal[:, 1], normal[:, 2]), dim=1)
-    return values @ coefficients.to(normal.dtype)
+    normals (N, 3) (camera frame) under its spherical-harmonic coefficients (8, 3)."""
+    return environment_basis_values(normal) @ coefficients.to(normal.dtype)
