@@ -30,7 +30,7 @@ def score_sequence(folder, step=1):
     picks = list(range(0, info.frame_count, step))
     frames = [seq.read_rgb(seq.frame_path(folder, info, index)) for index in picks]
     start = time.perf_counter()
-    masks, detected = clip_masks(frames, info.hand_side)
+    masks, detected, _ = clip_masks(frames, info.hand_side, fps=info.fps)
     seconds = time.perf_counter() - start
     iou = []
     for index, mask in zip(picks, masks):

@@ -25,7 +25,10 @@ a 24 - 26 mm (35 mm equivalent) lens, and 26 mm over the 34.6 mm long side of a 
 
 Frames whose mask is empty (fewer than MIN_MASK_PIXELS hand pixels: the hand left the view or
 the segmenter missed it) are left out, reported in one warning line and recorded in
-sequence.json (`metadata.source_frames`, `metadata.dropped_frames`); every other problem stops
+sequence.json (`metadata.source_frames`, `metadata.dropped_frames`). Masks made from the footage
+are screened first (detection/footage_screen.py): frames with no hand found near them in time and
+frames whose mask disagrees with the landmarks are left out, and frames showing both hands are
+named, one line each; every other problem stops
 the import with one ImportVideoError line. The sequence is written into a hidden folder next
 to `out` and renamed into place at the end, so a failed import leaves nothing behind.
 FFmpeg's and the image libraries' own complaints (written straight to file descriptor 2) are
@@ -298,7 +301,7 @@ class AutoMasks:
     def __init__(self, frames, side, log=print):
         import cv2
 
-        from .detection.hand_masks import frame_mask
+        from .detection.hand_masks import screened_masks
         from .detection.mediapipe_hands import detect_keypoints, guess_hand_side
 
         self.path = frames.path
@@ -313,11 +316,15 @@ class AutoMasks:
             side, _ = guess_hand_side(small[i] for i in sample)
         log(f"making masks from the footage: MediaPipe landmarks in {len(small)} frames")
         keypoints = detect_keypoints(small, side)
-        self.masks = []
-        for number, (image, points) in enumerate(zip(small, keypoints.points)):
-            self.masks.append(np.packbits(frame_mask(image, points)))
+
+        def progress(number):
             if (number + 1) % max(1, len(small) // 10) == 0 or number + 1 == len(small):
                 log(f"masks: {number + 1}/{len(small)} frames")
+
+        masks, self.screen = screened_masks(small, keypoints, frames.fps or DEFAULT_FPS, progress)
+        for line in self.screen.lines(seq.frame_ranges, side, len(small)):
+            log(line)
+        self.masks = [np.packbits(mask) for mask in masks]
         self.small_shape = small[0].shape[:2]
         self.detected = keypoints.detected
 
@@ -365,6 +372,9 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
         raise ImportVideoError(f"every mask is empty (fewer than {MIN_MASK_PIXELS} hand pixels in each of {count} frames)")
     if len(boxes) < MIN_FRAMES:
         raise ImportVideoError(f"not enough frames: {len(boxes)} with a hand in the mask, need at least {MIN_FRAMES}")
+    named = mask_source.screen.dropped() if isinstance(mask_source, AutoMasks) else {}
+    named_frames = {index for frames_of_reason in named.values() for index in frames_of_reason}
+    empty = [index for index in empty if index not in named_frames]
     if empty:
         warn(f"warning: left out {len(empty)} frame(s) with an empty mask: {seq.frame_ranges(empty)}")
     K_source, camera_note = source_intrinsics(width, height, K, fov_deg)
@@ -403,7 +413,7 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
             "masks": str(masks) if masks is not None else "made from the footage (MediaPipe + GrabCut)",
             "source_size": [width, height], "source_K": K_source.tolist(), "camera": camera_note,
             "crop": {"x0": x0, "y0": y0, "side": side_px, "margin": margin},
-            "source_frames": kept, "dropped_frames": {"empty_mask": empty},
+            "source_frames": kept, "dropped_frames": {"empty_mask": empty, **named},
         }
         seq.write_sequence_info(partial, info)
         write_mask_preview(partial, info, partial / seq.MASK_PREVIEW_FILE)

@@ -20,6 +20,26 @@ from synth.motions import RELAXED
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
+
+def test_shading_detail_of_known_reliefs():
+    """A flat surface has none; normals tilted by +-a column by column (a checker far below the
+    average's scale) keep all of their energy, a^2 / (1 + a^2); a slow tilt across the image, none."""
+    alpha = np.zeros((96, 96))
+    alpha[8:88, 8:88] = 1
+    flat = np.zeros((96, 96, 3))
+    flat[..., 2] = 1
+    assert fidelity.shading_detail(flat, alpha) < 1e-12
+    columns = np.arange(96)[None, :].repeat(96, 0)
+    amplitude = 0.1
+    ripple = np.stack([amplitude * (-1.0) ** columns, np.zeros((96, 96)), np.ones((96, 96))], -1)
+    ripple /= np.linalg.norm(ripple, axis=-1, keepdims=True)
+    measured = fidelity.shading_detail(ripple, alpha)
+    expected = amplitude ** 2 / (1 + amplitude ** 2)
+    assert abs(measured - expected) < 0.02 * expected, measured
+    slow = np.stack([0.3 * columns / 96, np.zeros((96, 96)), np.ones((96, 96))], -1)
+    slow /= np.linalg.norm(slow, axis=-1, keepdims=True)
+    assert fidelity.shading_detail(slow, alpha) < 0.01 * measured
+
 def test_closest_points_against_dense_sampling():
     rng = np.random.default_rng(0)
     vertices = rng.normal(size=(30, 3))

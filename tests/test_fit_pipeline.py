@@ -1,6 +1,7 @@
 """The fit end to end on a tiny synthetic clip: outputs, checkpoint and resume, rollback."""
 import json
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -37,6 +38,14 @@ def test_fit_writes_a_complete_avatar(tiny_clip, tmp_path):
     scores = report["metrics"]
     assert all(np.isfinite(scores["psnr"])) and 0 < scores["silhouette_iou_min"] <= 1
     assert json.loads((out / "report.json").read_text())["stage_seconds"]["geometry"] > 0
+    # every texel outside the charts carries its nearest chart texel's value (filtering at the
+    # seams mixes in only the hand's), in the albedo and the normal map alike
+    from pipeline.fit.texture_fill import extend_outside
+    from pipeline.handmodel.uv_raster import rasterize_uv
+    inside = rasterize_uv(rig.uvs, rig.faces_uv, 64)[0] >= 0
+    for name in (av.ALBEDO_FILE, av.NORMAL_FILE):
+        image = cv2.imread(str(out / name))
+        assert np.array_equal(extend_outside(image, inside), image), name
 
     # a checkpoint of the previous version (no exposure gains) still reads as a finished fit,
     # with its gains off, and refuses to be resumed in one line

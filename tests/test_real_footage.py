@@ -145,7 +145,7 @@ def test_a_sleeve_is_not_taken_for_the_arm(tmp_path):
         frames.append(rgb)
         truths.append(mask & ~sleeve)
         sleeves.append(sleeve)
-    made, _ = clip_masks(frames, "right")
+    made, _, _ = clip_masks(frames, "right")
     iou = [(m & t).sum() / (m | t).sum() for m, t in zip(made, truths)]
     on_sleeve = [(m & s).sum() / s.sum() for m, s in zip(made, sleeves)]
     print("IoU", np.round(iou, 3), "share of the sleeve in the mask", np.round(on_sleeve, 3))
@@ -242,3 +242,93 @@ def test_an_exposure_ramp_goes_to_the_gains_not_the_albedo(tmp_path):
     assert np.abs(fitted / truth - 1).max() < 0.03
     assert ramp[1]["mae_scaled"] < 1.1 * constant[1]["mae_scaled"]
     assert json.dumps(ramp[0]["exposure"])
+
+
+# ----------------------------------------------------------------------------- footage the fit cannot serve
+
+def test_frames_without_a_hand_are_named_not_interpolated():
+    from pipeline.detection.footage_screen import frames_without_hand
+
+    detected = np.array([0, 0, 1, 1, 0, 1, 0, 0, 0, 0, 1, 1, 0], bool)
+    # 10 fps: gaps of up to 2 frames are interpolated; the 4-frame gap and both ends are not
+    expected = np.array([1, 1, 0, 0, 0, 0, 1, 1, 1, 1, 0, 0, 1], bool)
+    np.testing.assert_array_equal(frames_without_hand(detected, fps=10.0), expected)
+    assert frames_without_hand(np.zeros(3, bool), fps=30.0).all()
+    assert not frames_without_hand(np.ones(3, bool), fps=30.0).any()
+
+
+def test_landmarks_in_mask_counts_what_the_mask_holds():
+    from pipeline.detection.footage_screen import landmarks_in_mask
+
+    mask = np.zeros((100, 100), bool)
+    mask[:, :50] = True
+    points = np.zeros((21, 2))
+    points[:, 1] = 50
+    points[:, 0] = np.linspace(5, 95, 21)            # palm length (point 0 to 9) 45 px: reach 7 px
+    share = landmarks_in_mask(mask, points)
+    inside = (points[:, 0] < 50 + 7).mean()
+    assert abs(share - inside) < 1e-9 and 0.4 < share < 0.7
+    points[:, 0] = -10                                 # nothing inside the frame: nothing to disagree with
+    assert landmarks_in_mask(mask, points) == 1.0
+
+
+def _hide_the_hand(folder, info, index):
+    """Frame `index` of a clip with its hand painted over by the background's median colour."""
+    rgb = seq.read_rgb(seq.frame_path(folder, info, index))
+    mask = cv2.dilate(seq.read_mask(seq.mask_path(folder, info, index)).astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
+    rgb[mask] = np.median(rgb[~mask], axis=0).astype(np.uint8)
+    return rgb
+
+
+def test_frames_before_the_hand_enters_are_left_out_and_named(tmp_path, capsys):
+    """Without masks, the frames where MediaPipe finds no hand (and none near) are left out
+    with one line, not cut to a mask of whatever lies under the held landmarks."""
+    source = tmp_path / "source"
+    info = write_clip(source, OPEN, frames=9, size=160, turn_degrees=20)
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    hidden = (0, 1, 8)
+    for index in range(info.frame_count):
+        rgb = _hide_the_hand(source, info, index) if index in hidden else seq.read_rgb(seq.frame_path(source, info, index))
+        seq.write_png(frames / f"{index}.png", rgb)
+    out = tmp_path / "seq"
+    code, stdout, err = run(capsys, frames, "--out", out, "--side", "right")
+    assert code == 0, err
+    print(stdout)
+    assert "no hand found in 3 of 9 frames" in stdout
+    imported = seq.validate_sequence_folder(out)
+    assert imported.metadata["dropped_frames"]["no_hand_found"] == list(hidden)
+    assert imported.metadata["source_frames"] == [i for i in range(9) if i not in hidden]
+    assert imported.frame_count == 6
+
+
+def test_the_other_hand_is_named_and_kept_out_of_the_mask(tmp_path):
+    """Two hands whose fingers meet (the clip's right hand and, beside it, its mirror image: a left
+    hand): the screen names both hands in every frame, and the other hand's bones seeded as
+    background keep its fingers out of the masks (better than the same cut without them)."""
+    from pipeline.detection.hand_masks import clip_masks, frame_mask
+    from pipeline.detection.mediapipe_hands import detect_keypoints
+
+    source = tmp_path / "source"
+    info = write_clip(source, OPEN, frames=3, size=160, turn_degrees=20)
+    offset = 80                           # the mirrored hand's fingers meet the hand's
+    frames, truths = [], []
+    for index in range(info.frame_count):
+        rgb = seq.read_rgb(seq.frame_path(source, info, index))
+        mask = seq.read_mask(seq.mask_path(source, info, index))
+        canvas = np.concatenate([rgb, np.repeat(rgb[:, -1:], offset, axis=1)], axis=1)
+        other = np.zeros(canvas.shape[:2], bool)
+        other[:, offset:] = mask[:, ::-1]
+        canvas[other] = rgb[:, ::-1][mask[:, ::-1]]
+        truth = np.zeros(canvas.shape[:2], bool)
+        truth[:, :160] = mask
+        frames.append(canvas)
+        truths.append(truth & ~other)
+    made, detected, screen = clip_masks(frames, "right")
+    assert detected.all() and screen.both_hands == [0, 1, 2] and not screen.no_hand and not screen.mask_disagrees
+    keypoints = detect_keypoints(frames, "right")
+    unseeded = [frame_mask(rgb, points) for rgb, points in zip(frames, keypoints.points)]
+    iou = [(m & t).sum() / (m | t).sum() for m, t in zip(made, truths)]
+    iou_unseeded = [(m & t).sum() / (m | t).sum() for m, t in zip(unseeded, truths)]
+    print("IoU", np.round(iou, 3), "without the other hand's seeds", np.round(iou_unseeded, 3))
+    assert min(iou) > 0.95 and np.mean(iou) > np.mean(iou_unseeded) + 0.01

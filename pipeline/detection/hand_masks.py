@@ -13,8 +13,10 @@ in units of the palm's length L (wrist to middle knuckle):
 
 OpenCV's GrabCut then separates hand from background with colour models learned from those
 seeds, in a window around the hand; the result is the connected part that holds the palm,
-with its holes closed. Frames where MediaPipe finds no hand take the landmarks of the nearest
-frames in time (interpolated); a clip where it finds none fails with one line.
+with its holes closed. Where the other hand is in the frame too, its bones are sure background.
+Frames where MediaPipe finds no hand take the landmarks of the nearest frames in time
+(interpolated) when a detection lies close enough on both sides, and are otherwise left out
+(footage_screen.py); a clip where it finds none fails with one line.
 """
 from __future__ import annotations
 
@@ -32,11 +34,13 @@ RING = 0.6               # probable background ring beyond the probable hand
 NOT_SKIN = 3.5           # chroma distance (Mahalanobis, YCrCb) beyond which the forearm is not skin
 SLEEVE_START = 0.3       # ... tested from this far beyond the wrist (palm lengths)
 GRABCUT_ITERATIONS = 4
+GRABCUT_SEED = 0
 
 
-def frame_mask(rgb, points):
+def frame_mask(rgb, points, other_hand=None):
     """(H, W) bool hand mask of an RGB frame (H, W, 3) uint8 given its 21 landmarks (21, 2) in
-    pixels (corner origin)."""
+    pixels (corner origin); `other_hand` (21, 2), when finite: the other hand's landmarks, kept
+    out of the mask."""
     height, width = rgb.shape[:2]
     points = np.asarray(points, dtype=np.float64)
     palm = float(np.linalg.norm(points[9] - points[0]))
@@ -56,10 +60,10 @@ def frame_mask(rgb, points):
     ring = cv2.dilate(probable, _disc(RING * palm))
     seeds[ring > 0] = cv2.GC_PR_BGD
     seeds[probable > 0] = cv2.GC_PR_FGD
-    sure = np.zeros((height, width), np.uint8)
     thickness = max(1, int(round(BONE_WIDTH * palm)))
-    for chain in FINGERS:
-        cv2.polylines(sure, [np.round(points[list(chain)]).astype(np.int32)], False, 1, thickness)
+    if other_hand is not None and np.isfinite(other_hand).all():
+        seeds[_bones(other_hand, (height, width), thickness) > 0] = cv2.GC_BGD
+    sure = _bones(points, (height, width), thickness)
     centre = points[list(PALM)].mean(0)
     shrunk = np.round(centre + 0.6 * (points[list(PALM)] - centre)).astype(np.int32)
     cv2.fillConvexPoly(sure, cv2.convexHull(shrunk), 1)
@@ -75,11 +79,20 @@ def frame_mask(rgb, points):
     if not ((labels == cv2.GC_BGD) | (labels == cv2.GC_PR_BGD)).any():
         labels[0, :] = labels[-1, :] = labels[:, 0] = labels[:, -1] = cv2.GC_PR_BGD
     background, foreground = np.zeros((1, 65)), np.zeros((1, 65))
+    cv2.setRNGSeed(GRABCUT_SEED)   # its colour models start from k-means: the same frame, the same mask
     cv2.grabCut(np.ascontiguousarray(rgb[window]), labels, None, background, foreground, GRABCUT_ITERATIONS,
                 cv2.GC_INIT_WITH_MASK)
     hand = np.zeros((height, width), bool)
     hand[window] = (labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD)
     return _clean(hand, centre)
+
+
+def _bones(points, shape, thickness):
+    """(H, W) uint8: the fingers' and the palm's bones of the landmarks (21, 2) drawn as lines."""
+    bones = np.zeros(shape, np.uint8)
+    for chain in FINGERS:
+        cv2.polylines(bones, [np.round(points[list(chain)]).astype(np.int32)], False, 1, thickness)
+    return bones
 
 
 def _not_skin(rgb, skin):
@@ -113,12 +126,35 @@ def _clean(hand, centre):
     return part | (~np.isin(background, list(outer)) & ~part)
 
 
-def clip_masks(frames, side, detector=None, log=None):
-    """(F, H, W) bool masks of an iterable of RGB frames of one hand `side`; landmarks missing in a
-    frame are interpolated from its neighbours. Returns (masks, detected (F,) bool)."""
+def screened_masks(frames, keypoints, fps, on_frame=None):
+    """([(H, W) bool mask per frame], FootageScreen) of RGB frames (a list) and their Keypoints2D:
+    frames the screen names (footage_screen.py) get an empty mask; `on_frame(number)` after each."""
+    from .footage_screen import FootageScreen, frames_without_hand, landmarks_in_mask, MIN_LANDMARKS_IN_MASK
+
+    without_hand = frames_without_hand(keypoints.detected, fps)
+    other = keypoints.other_hand
+    both = [] if other is None else [int(i) for i in np.flatnonzero(np.isfinite(other).all(axis=(1, 2)))]
+    screen = FootageScreen(no_hand=[int(i) for i in np.flatnonzero(without_hand)], both_hands=both)
+    masks = []
+    for number, (rgb, points) in enumerate(zip(frames, keypoints.points)):
+        mask = np.zeros(rgb.shape[:2], bool)
+        if not without_hand[number]:
+            mask = frame_mask(rgb, points, None if other is None else other[number])
+            if landmarks_in_mask(mask, points) < MIN_LANDMARKS_IN_MASK:
+                screen.mask_disagrees.append(number)
+                mask = np.zeros(rgb.shape[:2], bool)
+        masks.append(mask)
+        if on_frame is not None:
+            on_frame(number)
+    return masks, screen
+
+
+def clip_masks(frames, side, detector=None, fps=30.0):
+    """(F, H, W) bool masks of an iterable of RGB frames of one hand `side` (frames the screen
+    names are empty). Returns (masks, detected (F,) bool, FootageScreen)."""
     from .mediapipe_hands import detect_keypoints
 
     frames = list(frames)
     keypoints = detect_keypoints(frames, side, detector)          # raises KeypointError without any hand
-    masks = np.stack([frame_mask(rgb, points) for rgb, points in zip(frames, keypoints.points)])
-    return masks, keypoints.detected
+    masks, screen = screened_masks(frames, keypoints, fps)
+    return np.stack(masks), keypoints.detected, screen

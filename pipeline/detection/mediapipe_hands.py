@@ -80,10 +80,11 @@ def detect_keypoints(frames, side, detector=None, on_frame=None):
     `on_frame()` is called after each frame (progress).
 
     Where MediaPipe finds two hands, the one labelled as `side` (see MEDIAPIPE_LABEL) is taken,
-    otherwise the most confident. Raises KeypointError when no frame has a detection."""
+    otherwise the most confident; the other's landmarks are kept in `other_hand`. Raises
+    KeypointError when no frame has a detection."""
     own = detector is None
     detector = detector or MediaPipeHands()
-    points, world, detected, score, handedness_ok = [], [], [], [], []
+    points, world, detected, score, handedness_ok, other = [], [], [], [], [], []
     try:
         for rgb in frames:
             hands = detector.detect(rgb)
@@ -95,6 +96,7 @@ def detect_keypoints(frames, side, detector=None, on_frame=None):
                 detected.append(False)
                 score.append(0.0)
                 handedness_ok.append(False)
+                other.append(np.full((KEYPOINT_COUNT, 2), np.nan))
                 continue
             hands.sort(key=lambda hand: (hand[2] == MEDIAPIPE_LABEL[side], hand[3]), reverse=True)
             best = hands[0]
@@ -103,6 +105,7 @@ def detect_keypoints(frames, side, detector=None, on_frame=None):
             detected.append(True)
             score.append(best[3])
             handedness_ok.append(best[2] == MEDIAPIPE_LABEL[side])
+            other.append(hands[1][0] if len(hands) > 1 else np.full((KEYPOINT_COUNT, 2), np.nan))
     finally:
         if own:
             detector.close()
@@ -114,7 +117,8 @@ def detect_keypoints(frames, side, detector=None, on_frame=None):
                             "check the frames, or give keypoints with --init keypoints FILE")
     return Keypoints2D(points=interpolate_missing(np.array(points), detected), detected=detected,
                        score=np.array(score), world=interpolate_missing(np.array(world), detected),
-                       handedness_ok=np.array(handedness_ok, dtype=bool), source="mediapipe")
+                       handedness_ok=np.array(handedness_ok, dtype=bool), other_hand=np.array(other),
+                       source="mediapipe")
 
 
 def detect_sequence_keypoints(folder, info=None, detector=None, on_frame=None):

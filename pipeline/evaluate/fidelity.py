@@ -23,7 +23,11 @@ albedo (gt.npz: shape and personal offsets; gt_albedo.png).
                 judge shape, pose response and texture, not exposure; the raw PSNR is kept too.
                 What limits them: the same figures for the fitted shape with the true albedo
                 (`fitted_shape_alone`) and for the true shape with the fitted albedo
-                (`fitted_albedo_alone`).
+                (`fitted_albedo_alone`). Shading detail: the fine relief the light shows in
+                those renders (the shading normals' departure from their local average, mean
+                square over the inner silhouette) of the avatar over the truth's, with and without
+                its normal map: near 1 is a physical surface, well above it checkers, facets or
+                bumps the true hand lacks, well below it a surface smoother than the hand.
                 (b), with `cycles`: the avatar as fitted, under its fitted light, against the
                 true hand rendered by Cycles under the clip's own light (cycles_truth.py): what
                 a user sees; the true hand by our renderer against the same renders is the floor
@@ -67,6 +71,8 @@ AMBIENT = 0.6
 PICTURE_POSES = ("fist", "thumbs_up", "spread")
 HAND_PARTS = [i for i, name in enumerate(fmt.PART_NAMES) if name not in ("forearm", "wrist_cap")]
 PSNR_CAP = 100.0
+SHADING_DETAIL_SIGMA = 2.0   # pixels at SIZE: the scale below which shading counts as fine relief
+SHADING_DETAIL_BORDER = 3    # pixels of the silhouette's rim left out (the outline is not relief)
 
 
 @dataclasses.dataclass
@@ -273,6 +279,37 @@ def _capped_psnr(a, b, mask):
     return PSNR_CAP if mse <= 10 ** (-PSNR_CAP / 10) else float(10 * np.log10(1 / mse))
 
 
+def shading_detail(normals, alpha):
+    """The fine relief in one render's shading: the mean over the silhouette (less its rim) of
+    |n - local average of n|^2, for shading normals (H, W, 3) and alpha (H, W); the average is a
+    Gaussian of SHADING_DETAIL_SIGMA pixels taken over the silhouette alone."""
+    inside = (np.asarray(alpha) > 0.5).astype(np.float64)
+    normals = np.asarray(normals, np.float64) * inside[..., None]
+    weight = cv2.GaussianBlur(inside, (0, 0), SHADING_DETAIL_SIGMA)
+    average = cv2.GaussianBlur(normals, (0, 0), SHADING_DETAIL_SIGMA) / np.maximum(weight, 1e-9)[..., None]
+    kernel = np.ones((2 * SHADING_DETAIL_BORDER + 1,) * 2, np.uint8)
+    core = cv2.erode(inside.astype(np.uint8), kernel).astype(bool)
+    if not core.any():
+        return 0.0
+    return float(np.square(normals - average).sum(-1)[core].mean())
+
+
+def shading_details(subjects, truth_model, pose, azimuth, elevation, size=SIZE):
+    """[shading_detail] of each (HandModel, Appearance) in `subjects` in `pose` from a view,
+    placed as render_posed places them."""
+    frame = framing(truth_model, pose, azimuth, elevation, size)
+    d = frame.distance
+    light = Light(torch.tensor([0.3 * d, -0.4 * d, 0.2 * d]), torch.tensor(AMBIENT))
+    details = []
+    with torch.no_grad():
+        for model, appearance in subjects:
+            vertices = model(pose=frame.pose, global_orient=frame.global_orient).vertices + frame.shift
+            out = render(vertices, RenderMesh.from_model_data(model.data), frame.K, frame.size, frame.size,
+                         outputs=("rgb", "alpha", "shading_normal"), appearance=appearance, light=light)
+            details.append(shading_detail(out["shading_normal"][0].numpy(), out["alpha"][0, ..., 0].numpy()))
+    return details
+
+
 # ----------------------------------------------------------------------------- texture
 
 def sharpness_ratio(fitted, truth, visible):
@@ -327,6 +364,8 @@ def evaluate_fidelity(avatar_folder, sequence, picture=True, cycles=False):
     shape_alone = Appearance(truth.albedo, appearance.normal_map)
     albedo_alone = Appearance(scaled.albedo)
     poses, renders, rows, parts = novel_poses(truth.data.side), {}, [], {"fitted_shape": [], "fitted_albedo": []}
+    without_normal_map = Appearance(appearance.albedo)
+    details = []     # (avatar, avatar without its normal map, truth) per pose and view
     for name, pose in poses.items():
         for view, (azimuth, elevation) in VIEWS.items():
             (a_rgb, a_alpha), (raw_rgb, _), (s_rgb, s_alpha), (c_rgb, c_alpha), (t_rgb, t_alpha) = render_posed(
@@ -338,6 +377,8 @@ def evaluate_fidelity(avatar_folder, sequence, picture=True, cycles=False):
             parts["fitted_shape"].append(image_scores(s_rgb, s_alpha, t_rgb, t_alpha))
             parts["fitted_albedo"].append(image_scores(c_rgb, c_alpha, t_rgb, t_alpha))
             renders[name, view] = (a_rgb[0].numpy(), t_rgb[0].numpy())
+            details.append(shading_details([(avatar_model, appearance), (avatar_model, without_normal_map),
+                                            (truth_model, truth_appearance)], truth_model, pose, azimuth, elevation))
     keys = ("psnr", "ssim", "iou", "psnr_overlap")
     result = {
         "geometry": {**geometry_errors(files.rig, truth.data),
@@ -345,7 +386,8 @@ def evaluate_fidelity(avatar_folder, sequence, picture=True, cycles=False):
         "new_poses": {"rows": rows, **{f"{key}_mean": float(np.mean([r[key] for r in rows])) for key in keys + ("psnr_raw",)},
                       "poses": list(poses), "views": VIEWS, "albedo_scale": texture["scale"],
                       **{f"{part}_alone": {f"{key}_mean": float(np.mean([r[key] for r in part_rows])) for key in keys}
-                         for part, part_rows in parts.items()}},
+                         for part, part_rows in parts.items()},
+                      "shading_detail": shading_detail_summary(details)},
         "texture": texture,
     }
     if cycles:
@@ -385,6 +427,16 @@ def cycles_scores(sequence, description, avatar_model, appearance, truth_model, 
     keys = ("psnr", "ssim", "iou", "psnr_overlap")
     return {"rows": rows, **{f"{key}_mean": float(np.mean([r[key] for r in rows])) for key in keys},
             "renderer_floor": {f"{key}_mean": float(np.mean([r[key] for r in floor])) for key in keys}}
+
+
+def shading_detail_summary(details):
+    """The avatar's shading detail over the truth's, averaged over the renders (module docstring),
+    from (avatar, avatar without its normal map, truth) figures per render."""
+    details = np.asarray(details, np.float64)
+    truth = np.maximum(details[:, 2], 1e-12)
+    return {"ratio": float(np.mean(details[:, 0] / truth)),
+            "ratio_without_normal_map": float(np.mean(details[:, 1] / truth)),
+            "truth_mean": float(details[:, 2].mean())}
 
 
 def write_picture(path, renders, fitted_albedo, true_albedo, window):

@@ -33,6 +33,7 @@ class Keypoints2D:
     score: np.ndarray                   # (F,) confidence in [0, 1] (0 where not detected)
     world: np.ndarray | None = None     # (F, 21, 3) MediaPipe's metric world landmarks, metres
     handedness_ok: np.ndarray | None = None  # (F,) bool: the detector's label matched the side
+    other_hand: np.ndarray | None = None     # (F, 21, 2) the other hand's landmarks where two were found, else NaN
     source: str = "mediapipe"
 
     @property
