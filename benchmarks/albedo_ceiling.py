@@ -53,7 +53,7 @@ def show_true_albedo(problem, shadows, true_albedo, batch_size=4):
     light = avatar.light(shadows)
     for batch in torch.arange(len(problem.frames)).split(batch_size):
         vertices, _ = avatar.posed(batch)
-        images = render(vertices, avatar.mesh, clip.K, clip.height, clip.width, outputs=("rgb", "alpha"),
+        images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=("rgb", "alpha"),
                         appearance=appearance, light=light, antialiased=False)
         rgb = images["rgb"] * avatar.exposure_gain(batch) if problem.exposure_on else images["rgb"]
         inside = images["alpha"] > 0.5

@@ -85,12 +85,12 @@ def bind_avatar(folder, sequence=None, scene=None, name=None, pack=False, smooth
         raise BindError(str(error)) from None
     scene = scene or bpy.context.scene
     footage = _footage(files, sequence)
-    width, height, K = _camera_at(files, footage)
+    width, height, K, moving = _camera_at(files, footage)
     name = name or f"HARP {folder.name}"
     with removing_on_failure():
         collection, space = _capture(scene, name)
         collection["harp_avatar"] = str(folder.resolve())
-        camera_object = _camera(name, collection, space, K, width, height, footage, pack)
+        camera_object = _camera(name, collection, space, K, width, height, footage, pack, moving)
         rig = build_hand_rig(files.rig, np.zeros(files.rig.shapedirs.shape[-1]), collection=collection, name=name)
         rig.armature.parent = space
         rig.armature.matrix_parent_inverse = Matrix.Identity(4)
@@ -116,7 +116,7 @@ def footage_camera(sequence, scene=None, name=None):
     with removing_on_failure():
         collection, space = _capture(scene, name)
         camera_object = _camera(name, collection, space, np.asarray(info.K, dtype=np.float64), info.width,
-                                info.height, footage, pack=False)
+                                info.height, footage, pack=False, moving=_footage_principal_points(info))
         _scene_settings(scene, camera_object, footage, info.width, info.height,
                         np.array([FIRST_FRAME]))
     return camera_object
@@ -144,13 +144,25 @@ def _footage(files, sequence):
         raise BindError(f"footage: {error}") from None
 
 
+def _footage_principal_points(info):
+    """(frames, (F, 2) principal points) of a sequence whose crop follows the hand, else None."""
+    if info.principal_points is None:
+        return None
+    return FIRST_FRAME + np.arange(info.frame_count), np.asarray(info.principal_points, dtype=np.float64)
+
+
 def _camera_at(files, footage):
-    """(width, height, K) of the scene: the footage's size when known, else the fitted images';
-    K is the fit's, scaled to that size."""
+    """(width, height, K, moving) of the scene: the footage's size when known, else the fitted
+    images'; K is the fit's, scaled to that size; moving: (frames, principal points) where the
+    crop follows the hand (every footage frame's, else every fitted frame's), or None."""
     entry = files.description.get("camera")
     if not entry:
         raise BindError("avatar.json has no camera")
     K, width, height = np.array(entry["K"], dtype=np.float64), int(entry["width"]), int(entry["height"])
+    moving = None
+    if entry.get("principal_points") is not None:
+        moving = (FIRST_FRAME + np.asarray(files.poses.frames, dtype=np.int64),
+                  np.asarray(entry["principal_points"], dtype=np.float64))
     if footage is not None:
         info = footage[1]
         scale = info.width / width
@@ -159,13 +171,18 @@ def _camera_at(files, footage):
                             "images of another shape")
         K[:2] *= scale
         width, height = info.width, info.height
-    return width, height, K
+        moving = _footage_principal_points(info)
+    return width, height, K, moving
 
 
-def _camera(name, collection, space, K, width, height, footage, pack):
+def _camera(name, collection, space, K, width, height, footage, pack, moving=None):
+    """The capture's camera (K); with `moving` (frames, principal points), its lens shift keyed
+    at each frame (constant between keys), as each frame's own crop was cut."""
     data = bpy.data.cameras.new(f"{name} camera")
     for key, value in camera.blender_camera_settings(K, width, height).items():
         setattr(data, key, value)
+    if moving is not None:
+        _shift_keyframes(data, K, width, height, *moving)
     data.clip_start, data.clip_end = 0.01, 100.0
     camera_object = bpy.data.objects.new(f"{name} camera", data)
     collection.objects.link(camera_object)
@@ -182,6 +199,27 @@ def _camera(name, collection, space, K, width, height, footage, pack):
         background.alpha, background.display_depth = 1.0, "BACK"
         data.show_background_images = True
     return camera_object
+
+
+def _shift_keyframes(data, K, width, height, frames, principal_points):
+    """Key the camera data's lens shift at `frames` to each principal point (F, 2)."""
+    shifts = []
+    for point in principal_points:
+        frame_K = np.array(K, dtype=np.float64)
+        frame_K[:2, 2] = point
+        settings = camera.blender_camera_settings(frame_K, width, height)
+        shifts.append((settings["shift_x"], settings["shift_y"]))
+    shifts = np.asarray(shifts)
+    data.shift_x, data.shift_y = shifts[0]
+    action = bpy.data.actions.new(f"{data.name} crop")
+    data.animation_data_create()
+    data.animation_data.action = action
+    for index, path in enumerate(("shift_x", "shift_y")):
+        curve = _fcurve(action, data, path, 0)
+        curve.keyframe_points.add(len(frames))
+        curve.keyframe_points.foreach_set("co", np.stack([frames, shifts[:, index]], 1).ravel().astype(np.float32))
+        curve.keyframe_points.foreach_set("interpolation", np.full(len(frames), _CONSTANT, dtype=np.int32))
+        curve.update()
 
 
 def _node_tree(block):
@@ -314,6 +352,7 @@ def _fcurve(action, owner, path, index):
 
 
 _LINEAR = bpy.types.Keyframe.bl_rna.properties["interpolation"].enum_items["LINEAR"].value
+_CONSTANT = bpy.types.Keyframe.bl_rna.properties["interpolation"].enum_items["CONSTANT"].value
 
 
 def _continuous(quaternions):

@@ -102,7 +102,7 @@ def _import_video(args):
 
     import_video(args.video, args.masks, args.out, size=args.size, K=parse_intrinsics(args.K) if args.K else None,
                  fov_deg=args.fov, side=args.side, fps=args.fps, margin=args.margin, max_frames=args.max_frames,
-                 overwrite=args.overwrite, warn=lambda message: print(message, file=sys.stderr))
+                 overwrite=args.overwrite, warn=lambda message: print(message, file=sys.stderr), crop=args.crop)
 
 
 def _init(args):
@@ -325,6 +325,10 @@ def build_parser():
     video.add_argument("--fps", type=float, default=None, help="frame rate (default: the video's, or 30)")
     video.add_argument("--margin", type=float, default=0.15,
                        help="room around the hand in the crop, as a fraction of the hand's box (default 0.15)")
+    video.add_argument("--crop", choices=("auto", "frame", "clip"), default="auto",
+                       help="frame: a window that follows the hand, so it is as large in every frame (each frame "
+                            "gets its own principal point); clip: one window for the whole clip; auto (default): "
+                            "follow the hand where that shows it at least 1.25x larger")
     video.add_argument("--max-frames", type=int, default=None, help="import only the first N frames")
     video.add_argument("--overwrite", action="store_true", help="replace the sequence in --out")
     video.set_defaults(run=_import_video)

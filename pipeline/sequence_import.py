@@ -8,9 +8,15 @@ brightest channel >= 128 is hand), so lossy mask videos work. Without masks the 
 its own (detection/hand_masks.py: MediaPipe's landmarks seed OpenCV's GrabCut), at a working
 scale of at most AUTO_MASK_SIZE pixels; masks a user gives always win.
 
-One square window is cut for the whole clip: the union of the masks' bounding boxes, grown by
-`margin` (a fraction of the box's longer side) on every side, made square about its centre and
-shifted to stay inside the frame where it fits. Where it still reaches past the frame (a hand
+The crop (`crop`): a square window that follows the hand ("frame"), or one window for the whole
+clip ("clip"); "auto" follows the hand where that shows it at least PER_FRAME_GAIN times larger
+and every window fits inside the frame. A following window has one size for the clip (the
+largest mask box, grown by `margin` of its longer side on every side) and moves with the hand:
+each frame's window holds that frame's mask box, centred on the box's centre smoothed over time
+(a Gaussian of FOLLOW_SECONDS), inside the frame; each frame then has its own principal point
+(sequence.json `principal_points`), the focal length stays the clip's. The clip's window is the
+union of the masks' bounding boxes, grown by `margin` (a fraction of the box's longer side) on
+every side, made square about its centre and shifted to stay inside the frame where it fits. Where it still reaches past the frame (a hand
 near the edge of a narrow video), the import invents nothing: those pixels are black and
 sequence.json marks them invalid (`valid_region`), so no image term or score counts them. The
 window is resized to `size` x `size`, but never enlarged: a small source keeps its own scale.
@@ -54,6 +60,9 @@ MIN_MASK_PIXELS = seq.MIN_MASK_PIXELS  # fewer hand pixels than this: an empty m
 MIN_FRAMES = 2                  # the fit needs more than one view
 MASK_THRESHOLD = 128
 AUTO_MASK_SIZE = 640            # long side of the frames masks are made at (then scaled back)
+CROPS = ("auto", "frame", "clip")
+PER_FRAME_GAIN = 1.25           # crop=auto follows the hand where it is then this much larger
+FOLLOW_SECONDS = 0.1            # how much the following window's centre is smoothed over time
 
 
 class ImportVideoError(ValueError):
@@ -203,6 +212,27 @@ def crop_window(box, width, height, margin):
     return x0, y0, side
 
 
+def following_windows(boxes, width, height, margin, fps):
+    """(side, (N, 2) int x0, y0 per box) of square windows of one side that follow the hand:
+    boxes (N, 4) (x_min, y_min, x_max, y_max), in frame order. Each window holds its box and
+    lies inside the width x height frame (side None where the largest box, grown, does not fit);
+    between those bounds its centre is the boxes' centres smoothed over time (FOLLOW_SECONDS)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    boxes = np.asarray(boxes, dtype=np.float64)
+    side = int(math.ceil(max((boxes[:, 2:] - boxes[:, :2]).max(), 1) * (1 + 2 * margin)))
+    if side > min(width, height):
+        return None, None
+    half = side / 2.0
+    centres = (boxes[:, :2] + boxes[:, 2:]) / 2
+    smoothed = gaussian_filter1d(centres, sigma=max(FOLLOW_SECONDS * fps, 1e-3), axis=0, mode="nearest")
+    low = np.maximum(boxes[:, 2:] - half, half)                        # holds the box, inside the frame
+    high = np.minimum(boxes[:, :2] + half, np.array([width, height]) - half)
+    corners = np.round(np.clip(smoothed, low, high) - half).astype(int)
+    corners = np.clip(corners, 0, np.array([width, height]) - side)
+    return side, corners
+
+
 def valid_region(x0, y0, side, size, width, height):
     """[x0, y0, x1, y1] of the output pixels that hold recorded pixels of the width x height
     frame, after cropping the window (x0, y0, side) and resizing it to size; None when all do.
@@ -340,7 +370,7 @@ class AutoMasks:
 
 
 def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto", fps=None, margin=0.15,
-                 max_frames=None, overwrite=False, log=print, warn=None):
+                 max_frames=None, overwrite=False, log=print, warn=None, crop="auto"):
     """Write the sequence folder `out` from `video` and `masks` (files or image folders; None:
     made from the frames); returns its SequenceInfo. See the module docstring."""
     warn = warn or log
@@ -354,6 +384,8 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
         raise ImportVideoError(f"--fps must be positive, got {fps}")
     if side not in ("right", "left", "auto"):
         raise ImportVideoError(f"--side must be right, left or auto, got {side!r}")
+    if crop not in CROPS:
+        raise ImportVideoError(f"--crop must be one of {', '.join(CROPS)}, got {crop!r}")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ImportVideoError(f"output {out} exists and is not a folder")
@@ -378,14 +410,27 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
     if empty:
         warn(f"warning: left out {len(empty)} frame(s) with an empty mask: {seq.frame_ranges(empty)}")
     K_source, camera_note = source_intrinsics(width, height, K, fov_deg)
-    stacked = np.array(list(boxes.values()))
-    union = (stacked[:, 0].min(), stacked[:, 1].min(), stacked[:, 2].max(), stacked[:, 3].max())
-    x0, y0, side_px = crop_window(union, width, height, margin)
-    size = min(size, side_px)        # a small source keeps its own scale
-    info = seq.SequenceInfo(fps=fps or frames.fps or DEFAULT_FPS, width=size, height=size, frame_count=len(boxes),
-                            hand_side="right", K=crop_intrinsics(K_source, x0, y0, side_px, size),
-                            valid_region=valid_region(x0, y0, side_px, size, width, height))
     kept = sorted(boxes)
+    stacked = np.array([boxes[index] for index in kept])
+    union = (stacked[:, 0].min(), stacked[:, 1].min(), stacked[:, 2].max(), stacked[:, 3].max())
+    clip_fps = fps or frames.fps or DEFAULT_FPS
+    x0, y0, side_px = crop_window(union, width, height, margin)
+    follow_side, corners = following_windows(stacked, width, height, margin, clip_fps)
+    if crop == "frame" and follow_side is None:
+        raise ImportVideoError("--crop frame: the hand's window does not fit inside the frame; use --crop clip")
+    follows = crop == "frame" or (crop == "auto" and follow_side is not None
+                                  and side_px >= PER_FRAME_GAIN * follow_side)
+    if follows:
+        side_px = follow_side
+    else:
+        corners = np.tile([x0, y0], (len(kept), 1))
+    size = min(size, side_px)        # a small source keeps its own scale
+    frame_K = [crop_intrinsics(K_source, cx, cy, side_px, size) for cx, cy in corners]
+    info = seq.SequenceInfo(fps=clip_fps, width=size, height=size, frame_count=len(boxes),
+                            hand_side="right", K=frame_K[0],
+                            valid_region=None if follows else valid_region(x0, y0, side_px, size, width, height),
+                            principal_points=np.array([K_f[:2, 2] for K_f in frame_K]) if follows else None)
+    window_of = {index: (int(cx), int(cy)) for index, (cx, cy) in zip(kept, corners)}
     partial = out.parent / f".{out.name}.partial"
     shutil.rmtree(partial, ignore_errors=True)
     try:
@@ -393,9 +438,10 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
         for (index, image), (_, mask_image) in zip(frames, mask_source):
             if index not in boxes:
                 continue
-            seq.write_png(seq.frame_path(partial, info, written), crop_and_resize(image, x0, y0, side_px, size))
+            cx, cy = window_of[index]
+            seq.write_png(seq.frame_path(partial, info, written), crop_and_resize(image, cx, cy, side_px, size))
             seq.write_png(seq.mask_path(partial, info, written),
-                          crop_and_resize(mask_image, x0, y0, side_px, size, mask=True))
+                          crop_and_resize(mask_image, cx, cy, side_px, size, mask=True))
             written += 1
         if written != len(kept):
             raise ImportVideoError(f"the {frames.label} gave {written} frames on the second read, {len(kept)} on the "
@@ -412,7 +458,10 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
             "generator": "harp import-video", "video": str(video),
             "masks": str(masks) if masks is not None else "made from the footage (MediaPipe + GrabCut)",
             "source_size": [width, height], "source_K": K_source.tolist(), "camera": camera_note,
-            "crop": {"x0": x0, "y0": y0, "side": side_px, "margin": margin},
+            "crop": ({"follows_the_hand": True, "x0": corners[:, 0].tolist(), "y0": corners[:, 1].tolist(),
+                      "side": side_px, "margin": margin, "clip_window_side": int(crop_window(union, width, height,
+                                                                                             margin)[2])}
+                     if follows else {"x0": x0, "y0": y0, "side": side_px, "margin": margin}),
             "source_frames": kept, "dropped_frames": {"empty_mask": empty, **named},
         }
         seq.write_sequence_info(partial, info)
@@ -426,7 +475,9 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
     scale_note = "" if side_px > size else f", kept at the source's {side_px} px (not enlarged)"
     valid_note = "" if info.valid_region is None else \
         f"; pixels outside {info.valid_region} lie past the video's edge and are marked invalid"
-    log(f"wrote {written} frames ({size}x{size}, crop {side_px} px at ({x0}, {y0}) of {width}x{height}"
+    where = (f"following the hand (one window for the clip would be {info.metadata['crop']['clip_window_side']} px)"
+             if follows else f"at ({x0}, {y0})")
+    log(f"wrote {written} frames ({size}x{size}, crop {side_px} px {where} of {width}x{height}"
         f"{scale_note}; {camera_note}{valid_note}) to {out}; the masks over sampled frames: "
         f"{out / seq.MASK_PREVIEW_FILE}")
     return info

@@ -67,10 +67,11 @@ def test_crop_keeps_the_intrinsics_consistent(tmp_path, capsys):
     frames, masks, _ = draw_clip(tmp_path / "src")
     out = tmp_path / "seq"
     code, stdout, _ = run(capsys, frames, "--masks", masks, "--out", out, "--size", 96, "--side", "right",
-                          "--K", "300,300,170,115")
+                          "--K", "300,300,170,115", "--crop", "clip")
     assert code == 0 and "wrote 6 frames" in stdout
     info = seq.validate_sequence_folder(out)
     assert (info.width, info.height, info.frame_count, info.hand_side) == (96, 96, 6, "right")
+    assert info.principal_points is None
     # the disc's centre, projected with the new K, is where the imported mask's centroid is
     expected = project(disc_points(6), info.K)[0]
     np.testing.assert_allclose(mask_centroids(out, info), expected, atol=0.35)
@@ -80,6 +81,14 @@ def test_crop_keeps_the_intrinsics_consistent(tmp_path, capsys):
     assert crop["side"] == pytest.approx(union_width * 1.3, abs=2)
     rgb = seq.read_rgb(seq.frame_path(out, info, 0))
     assert rgb.shape == (96, 96, 3) and rgb[seq.read_mask(seq.mask_path(out, info, 0))].mean() > 150
+    # by default the crop follows the disc: each frame's own K puts the centre on its centroid
+    follow = tmp_path / "follow"
+    code, stdout, _ = run(capsys, frames, "--masks", masks, "--out", follow, "--size", 96, "--side", "right",
+                          "--K", "300,300,170,115")
+    info = seq.validate_sequence_folder(follow)
+    assert code == 0 and "following the hand" in stdout and info.principal_points is not None
+    expected = np.stack([project(disc_points(6)[index:index + 1], K)[0][0] for index, K in enumerate(info.frame_K())])
+    np.testing.assert_allclose(mask_centroids(follow, info), expected, atol=0.35)
 
 
 def test_video_input_and_a_window_past_the_edge(tmp_path, capsys):

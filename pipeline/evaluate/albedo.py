@@ -74,9 +74,9 @@ def albedo_truth(sequence, size, device=None, fit_folder=None) -> AlbedoTruth:
     if truth.shape[:2] != (size, size):
         shrink = truth.shape[0] > size
         truth = cv2.resize(truth, (size, size), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
-    vertices, data, source = _visibility_meshes(fit_folder, sequence, info, device)
+    vertices, K, data, source = _visibility_meshes(fit_folder, sequence, info, device)
     mesh = RenderMesh.from_model_data(data, device=device)
-    visible = visible_texels(vertices, mesh, info.K, info.height, info.width, size)
+    visible = visible_texels(vertices, mesh, K, info.height, info.width, size)
     in_atlas = atlas_mask(data.uvs, data.faces_uv, size)
     visible &= in_atlas
     return AlbedoTruth(truth, visible, float(visible.sum() / in_atlas.sum()), source,
@@ -100,19 +100,21 @@ def evaluate_albedo(fit_folder, sequence, device=None, picture=True):
 
 
 def _visibility_meshes(folder, sequence, info, device):
+    """(vertices (F, V, 3), their frames' K (F, 3, 3), model data, where they came from)."""
+    frame_K = info.frame_K()
     if info.ground_truth:
         gt = seq.read_ground_truth(sequence / info.ground_truth)
         data = load_model_data(gt.mode, gt.side)
         if gt.vertices is not None:
-            return torch.as_tensor(gt.vertices, dtype=torch.float32, device=device), data, "gt.npz vertices"
+            return torch.as_tensor(gt.vertices, dtype=torch.float32, device=device), frame_K, data, "gt.npz vertices"
         model = HandModel.load(gt.mode, gt.side, device=device)
         with torch.no_grad():
             out = model(*(torch.as_tensor(a, device=device) for a in (gt.betas, gt.pose, gt.global_orient, gt.transl)))
-        return out.vertices, data, "hand model at the gt.npz parameters"
+        return out.vertices, frame_K, data, "hand model at the gt.npz parameters"
     if folder is None:
         raise EvaluationError(f"the sequence {sequence} has no ground truth to tell the visible texels")
-    avatar, _ = fitted_avatar(folder, sequence, device)
-    return posed_surfaces(avatar), avatar.model.data, "fitted meshes"
+    avatar, report = fitted_avatar(folder, sequence, device)
+    return posed_surfaces(avatar), frame_K[np.asarray(report["frames"])], avatar.model.data, "fitted meshes"
 
 
 def write_albedo_picture(path, fitted, truth, visible, minimum_size=256):

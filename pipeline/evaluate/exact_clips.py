@@ -75,7 +75,8 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
     """Render `frames` frames of the hand in `pose` ((16, 3) or (F, 16, 3) axis-angle, radians,
     right hand) into the sequence folder `folder` with its exact ground truth (gt.npz,
     gt_albedo.png). The hand (its bounding box in frame 0's pose, centred) is 80% of the image
-    tall, or `hand_px` pixels; `shift` moves it by fractions of the image (x right, y down);
+    tall, or `hand_px` pixels; `shift` moves it by fractions of the image (x right, y down; one
+    (x, y) or one per frame);
     `azimuth` (degrees) turns the view about the hand's long axis (90: from the thumb side);
     `mode` "arm" renders the hand with its forearm (framed as a whole); `betas` (one number: every
     shape coefficient) default to the average hand; `environment` (8, 3) adds an environment light
@@ -92,7 +93,8 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
     turns = np.zeros((frames, 3))
     turns[:, 1] = np.radians(turn_degrees) * (np.arange(frames) - (frames - 1) / 2)
     global_orient, transl = place_hand(view_rotation(azimuth, 0.0), turns, pivot, distance)
-    transl = transl + distance / focal * size * np.array([shift[0], shift[1], 0.0])
+    shift = np.broadcast_to(np.asarray(shift, dtype=np.float64), (frames, 2))     # one, or one per frame
+    transl = transl + distance / focal * size * np.concatenate([shift, np.zeros((frames, 1))], axis=1)
 
     with torch.no_grad():
         out = model(torch.as_tensor(betas), torch.as_tensor(pose), torch.as_tensor(global_orient),

@@ -168,7 +168,7 @@ def _observations(problem, shadows, batch_size, size):
     parts = []
     for batch in torch.arange(len(problem.frames), device=avatar.albedo.device).split(batch_size):
         vertices, _ = avatar.posed(batch)
-        images = render(vertices, avatar.mesh, clip.K, clip.height, clip.width, outputs=outputs,
+        images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=outputs,
                         appearance=appearance, light=dataclasses.replace(light, environment=None), antialiased=False)
         gain = avatar.exposure_gain(batch) if problem.exposure_on else torch.ones_like(avatar.exposure_gain(batch))
         gain = gain.expand_as(images["rgb"])

@@ -20,7 +20,7 @@ LUMINANCE = np.array([0.2126, 0.7152, 0.0722])   # Rec. 709 weights of linear-is
 class ClipData:
     images: torch.Tensor      # (F, H, W, 3) in [0, 1]
     masks: torch.Tensor       # (F, H, W, 1) in {0, 1}
-    K: torch.Tensor           # (3, 3) intrinsics at the working resolution
+    K: torch.Tensor           # (F, 3, 3) each frame's intrinsics at the working resolution
     info: seq.SequenceInfo
     frames: np.ndarray        # (F,) indices into the sequence
     valid: torch.Tensor | None = None   # (H, W, 1) pixels the camera recorded (None: all)
@@ -70,8 +70,8 @@ def load_clip(folder, resolution=None, frames=None, device=None, dtype=torch.flo
             mask = cv2.resize(mask, size, interpolation=cv2.INTER_AREA)
         images.append(rgb.astype(np.float32) / 255)
         masks.append((mask >= 0.5).astype(np.float32))
-    K = np.asarray(info.K, dtype=np.float64).copy()
-    K[:2] *= np.array([[size[0] / info.width], [size[1] / info.height]])
+    K = info.frame_K()[frames]
+    K[:, :2] *= np.array([[size[0] / info.width], [size[1] / info.height]])
     valid = None
     if info.valid_region is not None:   # a pixel counts only if it is wholly recorded
         recorded = cv2.resize(seq.validity_mask(info).astype(np.float32), size, interpolation=cv2.INTER_AREA)

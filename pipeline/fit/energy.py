@@ -20,7 +20,7 @@ class BatchData:
         self.problem, self.stage, self.frames, self.generator = problem, stage, frames, generator
         avatar, clip = problem.avatar, problem.clip
         self.vertices, self.keypoints = avatar.posed_coarse(frames) if stage.coarse else avatar.posed(frames)
-        self.images = render(self.vertices, avatar.coarse_mesh if stage.coarse else avatar.mesh, clip.K,
+        self.images = render(self.vertices, avatar.coarse_mesh if stage.coarse else avatar.mesh, clip.K[frames],
                              clip.height, clip.width, outputs=("alpha", "rgb") if shaded else ("alpha",),
                              appearance=avatar.appearance() if shaded else None,
                              light=avatar.light(shadows) if shaded else None,

@@ -32,7 +32,7 @@ def render_all(avatar, clip, shadows, exposure=False, batch_size=8):
         batch = torch.arange(start, min(start + batch_size, len(clip.frames)), device=clip.images.device)
         vertices, _ = avatar.posed(batch)
         plates = clip.backgrounds[batch].to(vertices.dtype)
-        images = render(vertices, avatar.mesh, clip.K, clip.height, clip.width, outputs=("rgb", "alpha"),
+        images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=("rgb", "alpha"),
                         appearance=avatar.appearance(), light=avatar.light(shadows),
                         background=torch.zeros(3, dtype=vertices.dtype, device=vertices.device) if exposure else plates)
         if exposure:   # over black, the colour is alpha times the hand's: gain it, then composite
@@ -141,7 +141,7 @@ def _write_avatar(out, problem, state, shadows):
         "mode": model_data.mode, "side": model_data.side, "betas": betas.tolist(),
         "light": {"position": avatar.light_position.detach().cpu().tolist(), "ambient": avatar.ambient.item(),
                   "shadows": shadows, "environment": environment_light.to_description(avatar.light().environment)},
-        "camera": {"K": clip.K.cpu().tolist(), "width": clip.width, "height": clip.height},
+        "camera": camera_description(clip),
         "footage": {"sequence": str(problem.sequence.resolve()), "fps": clip.info.fps,
                     "frame_count": clip.info.frame_count, "width": clip.info.width, "height": clip.info.height},
         "settings": {k: v for k, v in vars(settings).items() if k != "weights"} | {"weights": settings.weights},
@@ -150,6 +150,16 @@ def _write_avatar(out, problem, state, shadows):
     }
     albedo = _to_uint8(avatar.albedo.detach().permute(1, 2, 0))
     av.write_avatar_folder(out, av.AvatarFiles(description, rig, poses, albedo, av.encode_normal_map(normals)))
+
+
+def camera_description(clip) -> dict:
+    """avatar.json's camera: K of the first fitted frame at the working size, and every fitted
+    frame's principal point where they differ (a crop that follows the hand)."""
+    K = clip.K.cpu().double().numpy()
+    entry = {"K": K[0].tolist(), "width": clip.width, "height": clip.height}
+    if not np.allclose(K[:, :2, 2], K[0, :2, 2]):
+        entry["principal_points"] = K[:, :2, 2].tolist()
+    return entry
 
 
 def _to_uint8(image):

@@ -67,6 +67,17 @@ class SequenceInfo:
     albedo: str | None = None           # file name of the ground-truth albedo (gt_albedo.png)
     metadata: dict = dataclasses.field(default_factory=dict)  # free-form: generator, settings ...
     valid_region: list | None = None    # [x0, y0, x1, y1] recorded pixels (None: all of them)
+    # (F, 2) each frame's principal point (pixels) where each frame is cut from the footage around
+    # the hand (harp import-video's per-frame crops): frame f's intrinsics are K with (cx, cy)
+    # replaced by row f. None: every frame has K's.
+    principal_points: np.ndarray | None = None
+
+    def frame_K(self) -> np.ndarray:
+        """(F, 3, 3) the intrinsics of every frame."""
+        K = np.repeat(np.asarray(self.K, dtype=np.float64)[None], self.frame_count, axis=0)
+        if self.principal_points is not None:
+            K[:, :2, 2] = np.asarray(self.principal_points, dtype=np.float64)
+        return K
 
     def to_json(self) -> dict:
         return {
@@ -76,6 +87,8 @@ class SequenceInfo:
             "frames": self.frames, "masks": self.masks, "ground_truth": self.ground_truth,
             "albedo": self.albedo, "metadata": self.metadata,
             **({"valid_region": [int(v) for v in self.valid_region]} if self.valid_region is not None else {}),
+            **({"principal_points": np.asarray(self.principal_points, dtype=float).tolist()}
+               if self.principal_points is not None else {}),
         }
 
     def validate(self) -> None:
@@ -101,6 +114,13 @@ class SequenceInfo:
                 problems.append(f"{name}.path is missing")
             elif kind not in ("images", "video"):
                 problems.append(f"{name}.kind must be 'images' or 'video'")
+        if self.principal_points is not None:
+            try:
+                points = np.asarray(self.principal_points, dtype=float)
+            except (TypeError, ValueError):
+                points = np.zeros(0)
+            if points.shape != (self.frame_count, 2) or not np.isfinite(points).all():
+                problems.append(f"principal_points must hold one finite (cx, cy) per frame ({self.frame_count})")
         if self.valid_region is not None:
             x0, y0, x1, y1 = self.valid_region
             if not (0 <= x0 < x1 <= self.width and 0 <= y0 < y1 <= self.height):
@@ -159,7 +179,8 @@ def read_sequence_info(folder) -> SequenceInfo:
         fps=float(entry["fps"]), width=int(entry["width"]), height=int(entry["height"]),
         frame_count=int(entry["frame_count"]), hand_side=entry["hand_side"], K=intrinsics_from_json(entry),
         frames=entry["frames"], masks=entry.get("masks"), ground_truth=entry.get("ground_truth"),
-        albedo=entry.get("albedo"), metadata=entry.get("metadata", {}), valid_region=entry.get("valid_region"))
+        albedo=entry.get("albedo"), metadata=entry.get("metadata", {}), valid_region=entry.get("valid_region"),
+        principal_points=entry.get("principal_points"))
     info.validate()
     return info
 

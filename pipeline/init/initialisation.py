@@ -13,6 +13,8 @@ forearm framed tightly on the hand 0.04 - 0.08.
 """
 from __future__ import annotations
 
+import dataclasses
+
 from pathlib import Path
 
 import numpy as np
@@ -91,8 +93,13 @@ def initialise_sequence(folder, method="mediapipe", keypoint_file=None, mode="au
 
         settings = InitialFitSettings()
         log(f"initial fit of pose and shape to the keypoints ({planned_steps(settings)} steps)")
+        # each frame's pixels as the first frame's camera would see them: with a crop that follows
+        # the hand the frames differ in their principal point alone (sequence.json)
+        frame_K = info.frame_K()
+        in_first_camera = dataclasses.replace(keypoints, points=keypoints.points
+                                              + (frame_K[0, :2, 2] - frame_K[:, :2, 2])[:, None])
         with Progress(progress, planned_steps(settings)) as bar:
-            estimate = fit_initial_estimate(keypoints, info.K, mode=mode, side=info.hand_side, settings=settings,
+            estimate = fit_initial_estimate(in_first_camera, info.K, mode=mode, side=info.hand_side, settings=settings,
                                             log=bar.log if progress != "none" else log, progress=bar)
     path = write_initial_estimate(folder, estimate)
     log(f"wrote {path}")
