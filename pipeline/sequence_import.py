@@ -63,6 +63,8 @@ AUTO_MASK_SIZE = 640            # long side of the frames masks are made at (the
 CROPS = ("auto", "frame", "clip")
 PER_FRAME_GAIN = 1.25           # crop=auto follows the hand where it is then this much larger
 FOLLOW_SECONDS = 0.1            # how much the following window's centre is smoothed over time
+METER_SIZE = 320                # long side at which each source frame's background colour is measured
+METER_MARGIN = 0.03             # ... away from the hand by this share of that side
 
 
 class ImportVideoError(ValueError):
@@ -434,11 +436,12 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
     partial = out.parent / f".{out.name}.partial"
     shutil.rmtree(partial, ignore_errors=True)
     try:
-        written = 0
+        written, colours = 0, []
         for (index, image), (_, mask_image) in zip(frames, mask_source):
             if index not in boxes:
                 continue
             cx, cy = window_of[index]
+            colours.append(_background_colour(image, mask_image))
             seq.write_png(seq.frame_path(partial, info, written), crop_and_resize(image, cx, cy, side_px, size))
             seq.write_png(seq.mask_path(partial, info, written),
                           crop_and_resize(mask_image, cx, cy, side_px, size, mask=True))
@@ -454,6 +457,8 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
             log(f"hand side: {side} (MediaPipe votes right {votes['right']}, left {votes['left']} "
                 f"in {len(sample)} frames; --side overrides)")
         info.hand_side = side
+        if np.isfinite(colours).all():
+            info.background_colour = np.array(colours)
         info.metadata = {
             "generator": "harp import-video", "video": str(video),
             "masks": str(masks) if masks is not None else "made from the footage (MediaPipe + GrabCut)",
@@ -481,6 +486,23 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
         f"{scale_note}; {camera_note}{valid_note}) to {out}; the masks over sampled frames: "
         f"{out / seq.MASK_PREVIEW_FILE}")
     return info
+
+
+def _background_colour(image, mask_image):
+    """(3,) the source frame's background colour in [0, 1] (background_meter.py), measured at
+    up to METER_SIZE pixels: the whole frame is the camera's exposure meter, not the crop, which
+    moves over the scene when it follows the hand."""
+    import cv2
+
+    from .background_meter import frame_background_colour
+
+    scale = min(1.0, METER_SIZE / max(image.shape[:2]))
+    if scale < 1.0:
+        image = cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        mask_image = cv2.resize(mask_image, (image.shape[1], image.shape[0]), interpolation=cv2.INTER_AREA)
+    hand = mask_image >= MASK_THRESHOLD
+    margin = max(2, int(round(METER_MARGIN * max(image.shape[:2]))))
+    return frame_background_colour(image.astype(np.float64) / 255, hand, margin)
 
 
 def write_mask_preview(folder, info, path, count=8, tile=224):

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from pipeline import sequence_import as si
-from pipeline.evaluate.exact_clips import write_clip
+from pipeline.evaluate.exact_clips import BACKGROUND, write_clip
 from pipeline.fit import fit
 from pipeline.formats import avatar_folder as av
 from pipeline.formats import sequence_folder as seq
@@ -50,6 +50,8 @@ def test_the_crop_follows_the_hand_and_keeps_it_large(crossing):
     assert crop["clip_window_side"] > 2 * crop["side"]           # one window would show the hand half as large
     x0 = np.asarray(crop["x0"])
     assert np.all(np.diff(x0) > 0)                                # the window moves with the hand
+    # the exposure meter is the whole source frame's background (the crop moves over the scene)
+    np.testing.assert_allclose(info.background_colour, np.broadcast_to(BACKGROUND, (FRAMES, 3)), atol=1 / 255)
     for index in range(info.frame_count):
         side = _mask_box_side(seq.read_mask(seq.mask_path(folder, info, index)))
         assert side > 0.6 * info.width, (index, side)

@@ -332,3 +332,22 @@ def test_the_other_hand_is_named_and_kept_out_of_the_mask(tmp_path):
     iou_unseeded = [(m & t).sum() / (m | t).sum() for m, t in zip(unseeded, truths)]
     print("IoU", np.round(iou, 3), "without the other hand's seeds", np.round(iou_unseeded, 3))
     assert min(iou) > 0.95 and np.mean(iou) > np.mean(iou_unseeded) + 0.01
+
+
+def test_a_background_too_dark_to_meter_leaves_the_exposure_alone():
+    """A dark background (8-bit levels 7-9) is no exposure meter, however much it varies; a bright
+    one that varies by more than 3% switches the gains on. The meter's mean of the middle half is
+    not stuck to 8-bit levels as a median is."""
+    from types import SimpleNamespace
+
+    from pipeline.background_meter import interquartile_mean
+    from pipeline.fit.problem import _decide_exposure
+    from pipeline.fit.settings import FitSettings
+
+    dark = SimpleNamespace(background_brightness=np.array([7, 8, 9, 7]) / 255)
+    settings, note = _decide_exposure(FitSettings(exposure="auto"), dark)
+    assert settings.exposure == "off" and "too dark to meter" in note
+    bright = SimpleNamespace(background_brightness=np.array([0.5, 0.6, 0.55, 0.5]))
+    assert _decide_exposure(FitSettings(exposure="auto"), bright)[0].exposure == "on"
+    levels = np.array([[7.0]] * 60 + [[8.0]] * 40) / 255          # a median says 7, the middle half's mean more
+    assert interquartile_mean(levels)[0] == pytest.approx((35 * 7 + 15 * 8) / 50 / 255)

@@ -10,6 +10,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 import torch
 
+from ..background_meter import frame_background_colour
 from ..formats import sequence_folder as seq
 
 
@@ -41,8 +42,11 @@ class ClipData:
 
     @functools.cached_property
     def background_colour(self):
-        """(F, 3) median colour of each frame's background (recorded pixels away from the hand):
-        it changes over a clip when the camera's exposure or white balance does."""
+        """(F, 3) colour of each frame's background (recorded pixels away from the hand; as the
+        import measured it on the whole source frame where it did): it changes over a clip when
+        the camera's exposure or white balance does."""
+        if self.info.background_colour is not None:
+            return np.asarray(self.info.background_colour, dtype=np.float64)[self.frames]
         return background_colour(self.images, self.masks, self.valid)
 
     @property
@@ -82,17 +86,11 @@ def load_clip(folder, resolution=None, frames=None, device=None, dtype=torch.flo
 
 
 def background_colour(images, masks, valid=None, margin=8):
-    """(F, 3) median colour of each frame's pixels farther than `margin` px from the hand (and
-    recorded; NaN where there are none); images (F, H, W, 3), masks (F, H, W, 1)."""
-    kernel = np.ones((2 * margin + 1, 2 * margin + 1), np.uint8)
-    values = []
+    """(F, 3) colour of each frame's pixels farther than `margin` px from the hand (and recorded;
+    NaN where there are none; background_meter.py); images (F, H, W, 3), masks (F, H, W, 1)."""
     recorded = None if valid is None else valid.cpu().numpy()[..., 0] > 0.5
-    for image, mask in zip(images.cpu().numpy(), masks.cpu().numpy()):
-        away = cv2.dilate((mask[..., 0] > 0.5).astype(np.uint8), kernel) == 0
-        if recorded is not None:
-            away &= recorded
-        values.append(np.median(image[away], axis=0) if away.any() else np.full(3, np.nan))
-    return np.array(values, dtype=np.float64)
+    return np.array([frame_background_colour(image, mask[..., 0] > 0.5, margin, recorded)
+                     for image, mask in zip(images.cpu().numpy(), masks.cpu().numpy())], dtype=np.float64)
 
 
 def background_plates(images, masks, margin=2):

@@ -31,6 +31,10 @@ from .settings import FitSettings
 
 
 EXPOSURE_VARIATION = 0.03    # relative spread of the background's brightness that switches exposure gains on
+# a background darker than this (8-bit level 20) is no exposure meter: one level is 5% of it, and a
+# dark cloth behind a face changed by 14% as the hand covered the face (a real clip, the gains then
+# ran to green 0.83 .. 1.33)
+EXPOSURE_METER_FLOOR = 0.08
 
 
 class FitError(ValueError):
@@ -157,6 +161,10 @@ def _decide_exposure(settings, clip):
         return settings, f"{settings.exposure} (as asked)"
     brightness = clip.background_brightness
     brightness = brightness[np.isfinite(brightness)]
+    if len(brightness) and brightness.mean() < EXPOSURE_METER_FLOOR:
+        return dataclasses.replace(settings, exposure="off"), \
+            (f"off (auto: the background is too dark to meter the exposure, {100 * brightness.mean():.1f}% "
+             "brightness)")
     variation = float(brightness.std() / max(brightness.mean(), 1e-6)) if len(brightness) > 1 else 0.0
     decided = "on" if variation > EXPOSURE_VARIATION else "off"
     return dataclasses.replace(settings, exposure=decided), \

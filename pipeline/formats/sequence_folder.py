@@ -71,6 +71,9 @@ class SequenceInfo:
     # the hand (harp import-video's per-frame crops): frame f's intrinsics are K with (cx, cy)
     # replaced by row f. None: every frame has K's.
     principal_points: np.ndarray | None = None
+    # (F, 3) each frame's background colour in [0, 1] as the import measured it on the whole source
+    # frame, away from the hand (the fit's exposure meter; None: measured on the frames themselves)
+    background_colour: np.ndarray | None = None
 
     def frame_K(self) -> np.ndarray:
         """(F, 3, 3) the intrinsics of every frame."""
@@ -89,6 +92,8 @@ class SequenceInfo:
             **({"valid_region": [int(v) for v in self.valid_region]} if self.valid_region is not None else {}),
             **({"principal_points": np.asarray(self.principal_points, dtype=float).tolist()}
                if self.principal_points is not None else {}),
+            **({"background_colour": np.asarray(self.background_colour, dtype=float).round(6).tolist()}
+               if self.background_colour is not None else {}),
         }
 
     def validate(self) -> None:
@@ -121,6 +126,13 @@ class SequenceInfo:
                 points = np.zeros(0)
             if points.shape != (self.frame_count, 2) or not np.isfinite(points).all():
                 problems.append(f"principal_points must hold one finite (cx, cy) per frame ({self.frame_count})")
+        if self.background_colour is not None:
+            try:
+                colours = np.asarray(self.background_colour, dtype=float)
+            except (TypeError, ValueError):
+                colours = np.zeros(0)
+            if colours.shape != (self.frame_count, 3):
+                problems.append(f"background_colour must hold one (r, g, b) per frame ({self.frame_count})")
         if self.valid_region is not None:
             x0, y0, x1, y1 = self.valid_region
             if not (0 <= x0 < x1 <= self.width and 0 <= y0 < y1 <= self.height):
@@ -180,7 +192,7 @@ def read_sequence_info(folder) -> SequenceInfo:
         frame_count=int(entry["frame_count"]), hand_side=entry["hand_side"], K=intrinsics_from_json(entry),
         frames=entry["frames"], masks=entry.get("masks"), ground_truth=entry.get("ground_truth"),
         albedo=entry.get("albedo"), metadata=entry.get("metadata", {}), valid_region=entry.get("valid_region"),
-        principal_points=entry.get("principal_points"))
+        principal_points=entry.get("principal_points"), background_colour=entry.get("background_colour"))
     info.validate()
     return info
 
