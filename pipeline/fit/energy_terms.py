@@ -14,12 +14,14 @@ from typing import Any, Callable, Mapping
 
 import torch
 
+from ..formats.hand_model_file import ELBOW_KEYPOINT_NAME
 from ..handmodel.rotations import axis_angle_to_matrix
 from . import losses
 from .schedule import StageKind
 
 # what a term can need from a batch beyond the silhouette render (the energy makes only what is needed)
 SHADED = "shaded"              # the avatar rendered with its textures and light ("rgb")
+MIDDLE_KNUCKLE = 9             # keypoint index of the middle finger's knuckle (MediaPipe's order)
 
 _GEOMETRY = frozenset({StageKind.ALIGN, StageKind.GEOMETRY, StageKind.JOINT})
 _SURFACE = frozenset({StageKind.GEOMETRY, StageKind.JOINT})        # the subdivided, displaced surface
@@ -149,6 +151,38 @@ def _normal_consistency(batch):
 @_term("edge_length", 0.2, _SURFACE)
 def _edge_length(batch):
     return losses.edge_length_loss(batch.vertices, batch.problem.reference_vertices[batch.frames], batch.problem.edges)
+
+
+def _forearm_targets(problem):
+    """((F, 2) unit directions, (F,) bool) where each frame's mask takes the forearm from the
+    wrist (forearm_mask.py), with the wrist and knuckle of the avatar as the problem starts."""
+    from ..render.rasterize import project
+    from .forearm_mask import forearm_targets
+
+    avatar, clip = problem.avatar, problem.clip
+    with torch.no_grad():
+        _, keypoints = avatar.posed_coarse(torch.arange(len(clip.frames), device=clip.images.device))
+        pixels = project(keypoints[:, [0, MIDDLE_KNUCKLE]], clip.K).cpu().numpy()
+    directions, found = forearm_targets(clip.masks[..., 0].cpu().numpy() > 0.5, pixels[:, 0], pixels[:, 1])
+    return (torch.as_tensor(directions, dtype=clip.images.dtype, device=clip.images.device),
+            torch.as_tensor(found, device=clip.images.device))
+
+
+def _has_forearm(problem):
+    return ELBOW_KEYPOINT_NAME in problem.avatar.model.data.keypoint_names
+
+
+# ours: in hand + forearm mode, the forearm's direction in the image towards where the mask takes
+# it (where it leaves the picture, when it does; forearm_mask.py): the silhouette pulls only at
+# outlines that already nearly agree, and nothing else tells the forearm where to point
+@_term("forearm_direction", 1.0, _GEOMETRY | {StageKind.HELD_OUT}, prepare=_forearm_targets, applies=_has_forearm)
+def _forearm_direction(batch):
+    from ..render.rasterize import project
+
+    targets, found = batch.problem.term_data["forearm_direction"]
+    elbow = batch.problem.avatar.model.data.keypoint_names.index(ELBOW_KEYPOINT_NAME)
+    pixels = project(batch.keypoints[:, [0, elbow]], batch.problem.clip.K[batch.frames])
+    return losses.direction_loss(pixels[:, 1] - pixels[:, 0], targets[batch.frames], found[batch.frames])
 
 
 # ours, off by default (weight 0) until measured: the shape held near the initial estimate's (from the

@@ -76,6 +76,15 @@ def edge_length_loss(vertices, reference_vertices, edges):
     return (length - reference).square().mean()
 
 
+def direction_loss(vectors, targets, found):
+    """Mean over the rows where `found` (N,) of 1 - cos of the angle between vectors (N, 2) and
+    unit targets (N, 2); 0 where none is found."""
+    if not bool(found.any()):
+        return vectors.new_zeros(())
+    unit = F.normalize(vectors[found], dim=-1, eps=1e-9)
+    return (1 - (unit * targets[found]).sum(-1)).mean()
+
+
 def shape_prior_loss(betas, target):
     """Mean squared distance of the shape parameters (S,) from a target shape (S,), in the shape
     space's own units (one standard deviation of the population each)."""

@@ -132,7 +132,7 @@ def build_problem(sequence, settings: FitSettings, frames, device=None, shared=N
     data = avatar.model.data
     uv_mask = torch.as_tensor(atlas_mask(data.uvs, data.faces_uv, settings.texture_size),
                               device=device, dtype=clip.images.dtype)
-    if settings.weights.get("perceptual", 0.0) == 0.0:
+    if ENERGY_TERMS["perceptual"].weight_in(settings) == 0.0:
         perceptual_name, perceptual = "off (weight 0)", None
     else:
         perceptual_name, perceptual = perceptual_term(settings.perceptual_weights, device)

@@ -101,6 +101,14 @@ def initialise_sequence(folder, method="mediapipe", keypoint_file=None, mode="au
         with Progress(progress, planned_steps(settings)) as bar:
             estimate = fit_initial_estimate(in_first_camera, info.K, mode=mode, side=info.hand_side, settings=settings,
                                             log=bar.log if progress != "none" else log, progress=bar)
+        if mode == "arm" and info.masks is not None:
+            from .forearm_alignment import align_forearms
+
+            masks = np.stack([seq.read_mask(seq.mask_path(folder, info, i)) for i in range(info.frame_count)])
+            estimate, turned = align_forearms(estimate, masks, frame_K)
+            if turned["frames"]:
+                log(f"forearm turned to the masks in {turned['frames']} frames (median "
+                    f"{turned['median_degrees']:.0f} degrees)")
     path = write_initial_estimate(folder, estimate)
     log(f"wrote {path}")
     return estimate
