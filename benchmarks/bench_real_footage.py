@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bench_real_footage.py VIDEO [--work DIR] [--preset fast]
         [--hold-out-every 10] [--size 448] [--max-frames N] [--pictures DIR] [--threads 1]
-        [--environment auto|on|off]
+        [--environment auto|on|off] [--crop auto|frame|clip]
 
 1. `harp import-video VIDEO` without masks (MediaPipe landmarks + GrabCut make them),
 2. `harp init` (MediaPipe keypoints, the initial fit),
@@ -64,6 +64,8 @@ def main(argv=None):
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1, pinned runs)")
     parser.add_argument("--environment", choices=("auto", "on", "off"), default=None,
                         help="the fit's environment light (default: the fit's default); its own avatar folder")
+    parser.add_argument("--crop", choices=("auto", "frame", "clip"), default="auto",
+                        help="the import's crop (harp import-video --crop; the work folder keeps one sequence)")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     work = Path(args.work)
@@ -75,7 +77,7 @@ def main(argv=None):
 
     if not (sequence / seq.SEQUENCE_FILE).is_file():
         timed(figures, "import", lambda: import_video(args.video, None, sequence, size=args.size,
-                                                      max_frames=args.max_frames, log=log))
+                                                      max_frames=args.max_frames, log=log, crop=args.crop))
     info = seq.validate_sequence_folder(sequence)
     figures.update(frames=info.frame_count, size=info.width, crop=info.metadata.get("crop"),
                    source_size=info.metadata.get("source_size"), valid_region=info.valid_region)

@@ -254,6 +254,15 @@ def test_frames_without_a_hand_are_named_not_interpolated():
     # 10 fps: gaps of up to 2 frames are interpolated; the 4-frame gap and both ends are not
     expected = np.array([1, 1, 0, 0, 0, 0, 1, 1, 1, 1, 0, 0, 1], bool)
     np.testing.assert_array_equal(frames_without_hand(detected, fps=10.0), expected)
+    # a long gap whose ends show the hand in the same place is the hand held still (a blur MediaPipe
+    # misses): interpolated; one whose ends disagree is not
+    still = np.zeros((13, 21, 2))
+    still[:, :, 0] = np.linspace(0, 40, 21)                       # palm length (point 0 to 9) 18 px
+    np.testing.assert_array_equal(frames_without_hand(detected, fps=10.0, points=still),
+                                  np.array([1, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1], bool))
+    moved = still.copy()
+    moved[10:] += 20.0
+    np.testing.assert_array_equal(frames_without_hand(detected, fps=10.0, points=moved), expected)
     assert frames_without_hand(np.zeros(3, bool), fps=30.0).all()
     assert not frames_without_hand(np.ones(3, bool), fps=30.0).any()
 

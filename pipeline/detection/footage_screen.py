@@ -3,9 +3,12 @@ cannot serve are named and left out, instead of fitted to a mask of something el
 
     no hand found     MediaPipe found no hand in the frame, and none within MAX_GAP_SECONDS of
                       it on both sides: before the hand enters, after it leaves, or in a long
-                      gap. Landmarks there would be held or interpolated over a hand that is not
+                      gap whose two ends disagree (the hand moved on: the wrist more than
+                      STILL_HAND palm lengths, or the palm's size by more than STILL_SCALE).
+                      Landmarks there would be held or interpolated over a hand that is not
                       there, and GrabCut would cut a mask from whatever lies under them (a chin,
-                      a blob on the floor). Short gaps are interpolated.
+                      a blob on the floor). Short gaps, and long ones where the hand held still
+                      (a blurred thumbs-up MediaPipe misses for seconds), are interpolated.
     both hands        MediaPipe found two hands: the one of the clip's side is taken, and the
                       other's bones are seeded as background, so its pixels stay out of the mask
                       (hand_masks.frame_mask).
@@ -23,7 +26,9 @@ import dataclasses
 import cv2
 import numpy as np
 
-MAX_GAP_SECONDS = 0.2          # missing detections interpolated across at most this long a gap
+MAX_GAP_SECONDS = 0.2          # missing detections interpolated across at most this long a gap ...
+STILL_HAND = 0.3               # ... or across any gap whose ends put the wrist this close (palm lengths)
+STILL_SCALE = 0.2              # ... and the palm's length within this share
 MIN_LANDMARKS_IN_MASK = 0.6    # share of the landmarks a mask must hold
 LANDMARK_REACH = 0.15          # palm lengths: a landmark this close to the mask counts as in it
 
@@ -56,10 +61,11 @@ class FootageScreen:
         return {"no_hand_found": list(self.no_hand), "mask_disagrees": list(self.mask_disagrees)}
 
 
-def frames_without_hand(detected, fps, max_gap_seconds=MAX_GAP_SECONDS):
+def frames_without_hand(detected, fps, points=None, max_gap_seconds=MAX_GAP_SECONDS):
     """(F,) bool: frames with no detection of their own that cannot borrow one, those before the
     first and after the last detection and those in a run of misses longer than the gap allows
-    (max_gap_seconds * fps frames, at least 1)."""
+    (max_gap_seconds * fps frames, at least 1) unless, with landmarks `points` (F, 21, 2), the
+    hand is in the same place at both ends (module docstring)."""
     detected = np.asarray(detected, dtype=bool)
     longest = max(1, int(round(max_gap_seconds * fps)))
     unserved = np.zeros(len(detected), dtype=bool)
@@ -70,9 +76,18 @@ def frames_without_hand(detected, fps, max_gap_seconds=MAX_GAP_SECONDS):
     unserved[:found[0]] = True
     unserved[found[-1] + 1:] = True
     for before, after in zip(found[:-1], found[1:]):
-        if after - before - 1 > longest:
+        if after - before - 1 > longest and not (points is not None and _held_still(points[before], points[after])):
             unserved[before + 1:after] = True
     return unserved
+
+
+def _held_still(first, last):
+    """Whether two frames' landmarks (21, 2) show the hand in the same place at the same size."""
+    palm = [float(np.linalg.norm(points[9] - points[0])) for points in (first, last)]
+    if min(palm) < 1e-6:
+        return False
+    moved = float(np.linalg.norm(first[0] - last[0])) / max(palm)
+    return moved < STILL_HAND and abs(palm[0] - palm[1]) < STILL_SCALE * max(palm)
 
 
 def landmarks_in_mask(mask, points):

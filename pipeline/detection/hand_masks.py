@@ -131,7 +131,7 @@ def screened_masks(frames, keypoints, fps, on_frame=None):
     frames the screen names (footage_screen.py) get an empty mask; `on_frame(number)` after each."""
     from .footage_screen import FootageScreen, frames_without_hand, landmarks_in_mask, MIN_LANDMARKS_IN_MASK
 
-    without_hand = frames_without_hand(keypoints.detected, fps)
+    without_hand = frames_without_hand(keypoints.detected, fps, keypoints.points)
     other = keypoints.other_hand
     both = [] if other is None else [int(i) for i in np.flatnonzero(np.isfinite(other).all(axis=(1, 2)))]
     screen = FootageScreen(no_hand=[int(i) for i in np.flatnonzero(without_hand)], both_hands=both)
