@@ -16,10 +16,13 @@ each frame's window holds that frame's mask box, centred on the box's centre smo
 (a Gaussian of FOLLOW_SECONDS), inside the frame; each frame then has its own principal point
 (sequence.json `principal_points`), the focal length stays the clip's. The clip's window is the
 union of the masks' bounding boxes, grown by `margin` (a fraction of the box's longer side) on
-every side, made square about its centre and shifted to stay inside the frame where it fits. Where it still reaches past the frame (a hand
-near the edge of a narrow video), the import invents nothing: those pixels are black and
-sequence.json marks them invalid (`valid_region`), so no image term or score counts them. The
-window is resized to `size` x `size`, but never enlarged: a small source keeps its own scale.
+every side, made square about its centre and shifted to stay inside the frame where it fits.
+Where it still reaches past the frame (a hand near the edge of a narrow video), the import
+invents nothing: those pixels are black and sequence.json marks them invalid (`valid_region`),
+so no image term or score counts them. The window is resized to `size` x `size`, but never
+enlarged: a small source keeps its own scale. The import also measures each source frame's
+background colour, away from the hand (sequence.json `background_colour`: the fit's exposure
+meter; the whole frame, as a following crop moves over the scene).
 The intrinsics follow exactly (pixel-corner convention of pipeline/formats/camera.py):
 cropping at (x0, y0) moves the principal point by (-x0, -y0); resizing by s scales fx, fy,
 cx, cy by s.
@@ -422,6 +425,7 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
         raise ImportVideoError("--crop frame: the hand's window does not fit inside the frame; use --crop clip")
     follows = crop == "frame" or (crop == "auto" and follow_side is not None
                                   and side_px >= PER_FRAME_GAIN * follow_side)
+    clip_side = side_px
     if follows:
         side_px = follow_side
     else:
@@ -464,8 +468,7 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
             "masks": str(masks) if masks is not None else "made from the footage (MediaPipe + GrabCut)",
             "source_size": [width, height], "source_K": K_source.tolist(), "camera": camera_note,
             "crop": ({"follows_the_hand": True, "x0": corners[:, 0].tolist(), "y0": corners[:, 1].tolist(),
-                      "side": side_px, "margin": margin, "clip_window_side": int(crop_window(union, width, height,
-                                                                                             margin)[2])}
+                      "side": side_px, "margin": margin, "clip_window_side": clip_side}
                      if follows else {"x0": x0, "y0": y0, "side": side_px, "margin": margin}),
             "source_frames": kept, "dropped_frames": {"empty_mask": empty, **named},
         }
