@@ -46,7 +46,8 @@ class FootageScreen:
         lines = []
         if self.no_hand:
             lines.append(f"no hand found in {len(self.no_hand)} of {total} frames (none detected within "
-                         f"{MAX_GAP_SECONDS:g} s): left out: {frame_ranges(self.no_hand)}")
+                         f"{MAX_GAP_SECONDS:g} s, nor the hand held still across the gap): left out: "
+                         f"{frame_ranges(self.no_hand)}")
         if self.both_hands:
             lines.append(f"both hands in {len(self.both_hands)} frames: the {side} one taken, the other kept out "
                          f"of its masks: {frame_ranges(self.both_hands)}")

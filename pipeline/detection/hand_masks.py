@@ -24,6 +24,8 @@ import cv2
 import numpy as np
 from scipy.ndimage import label as ndimage_label
 
+from .footage_screen import MIN_LANDMARKS_IN_MASK, FootageScreen, frames_without_hand, landmarks_in_mask
+
 FINGERS = ((0, 1, 2, 3, 4), (0, 5, 6, 7, 8), (9, 10, 11, 12), (13, 14, 15, 16), (0, 17, 18, 19, 20))
 PALM = (0, 1, 5, 9, 13, 17)
 BONE_WIDTH = 0.07        # sure-hand bone lines, in palm lengths
@@ -129,8 +131,6 @@ def _clean(hand, centre):
 def screened_masks(frames, keypoints, fps, on_frame=None):
     """([(H, W) bool mask per frame], FootageScreen) of RGB frames (a list) and their Keypoints2D:
     frames the screen names (footage_screen.py) get an empty mask; `on_frame(number)` after each."""
-    from .footage_screen import FootageScreen, frames_without_hand, landmarks_in_mask, MIN_LANDMARKS_IN_MASK
-
     without_hand = frames_without_hand(keypoints.detected, fps, keypoints.points)
     other = keypoints.other_hand
     both = [] if other is None else [int(i) for i in np.flatnonzero(np.isfinite(other).all(axis=(1, 2)))]
