@@ -395,24 +395,17 @@ def _swing_the_forearm(clip, degrees):
     """Rewrite init.npz so that the forearm is turned by `degrees` in the image plane about the
     wrist while the hand stays where it was (the keypoints say nothing of the forearm)."""
     from pipeline.formats.initial_estimate import read_initial_estimate, write_initial_estimate
-    from pipeline.handmodel.rotations import axis_angle_to_matrix, matrix_to_axis_angle
+    from pipeline.init.forearm_alignment import turn_forearm
 
     estimate = read_initial_estimate(clip)
     model = HandModel.load("arm", dtype=torch.float64)
     betas, pose, orient, transl = (torch.as_tensor(np.asarray(a), dtype=torch.float64) for a in
                                    (estimate.betas, estimate.pose, estimate.global_orient, estimate.transl))
+    angles = torch.full((len(pose),), np.radians(degrees), dtype=torch.float64)
+    pose, orient, transl = turn_forearm(model, betas, pose, orient, transl, angles)
     with torch.no_grad():
-        before = model(betas, pose, orient, transl).keypoints
-        turn = axis_angle_to_matrix(torch.tensor([0.0, 0.0, np.radians(degrees)], dtype=torch.float64))
-        rotation = axis_angle_to_matrix(orient)
-        turned = turn @ rotation
-        pose = pose.clone()
-        pose[:, 0] = matrix_to_axis_angle(turned.transpose(1, 2) @ rotation @ axis_angle_to_matrix(pose[:, 0]))
-        orient = matrix_to_axis_angle(turned)
-        moved = model(betas, pose, orient, transl).keypoints
-        transl = transl + (before[:, 0] - moved[:, 0])
         after = model(betas, pose, orient, transl).keypoints
-    assert (after[:, :21] - before[:, :21]).abs().max() < 1e-6          # the hand has not moved
+    np.testing.assert_allclose(after[:, :21].numpy(), estimate.keypoints3d, atol=1e-6)   # the hand has not moved
     write_initial_estimate(clip, dataclasses.replace(estimate, pose=pose.numpy(), global_orient=orient.numpy(),
                                                      transl=transl.numpy()))
 

@@ -34,6 +34,22 @@ def signed_angles(vectors, targets):
     return np.arctan2(cross, (vectors * targets).sum(1))
 
 
+def turn_forearm(model, betas, pose, orient, transl, angles):
+    """(pose, global_orient, transl) with each frame's forearm turned by `angles` (F,) radians
+    about the camera ray through its wrist (in the image: about the wrist, positive clockwise on
+    the screen), the wrist joint turned back by as much: the hand's keypoints do not move."""
+    with torch.no_grad():
+        wrist = model(betas, pose, orient, transl).keypoints[:, 0]
+        ray = torch.nn.functional.normalize(wrist, dim=-1)
+        old = axis_angle_to_matrix(orient)
+        new = axis_angle_to_matrix(ray * angles[:, None]) @ old
+        pose = pose.clone()
+        pose[:, 0] = matrix_to_axis_angle(new.transpose(1, 2) @ old @ axis_angle_to_matrix(pose[:, 0]))
+        orient = matrix_to_axis_angle(new)
+        moved = model(betas, pose, orient, transl).keypoints[:, 0]
+    return pose, orient, transl + (wrist - moved)
+
+
 def align_forearms(estimate, masks, frame_K, model=None):
     """(InitialEstimate with each frame's forearm turned to its mask, {"frames": turned frames,
     "median_degrees": median absolute turn}) for a hand + forearm estimate; masks (F, H, W) bool,
@@ -60,14 +76,6 @@ def align_forearms(estimate, masks, frame_K, model=None):
             turn[found] = signed_angles(points[found, 1] - points[found, 0], targets[found])
             turn = np.interp(np.arange(len(pose)), np.flatnonzero(found), turn[found])
             total += turn
-            ray = torch.nn.functional.normalize(keypoints[:, 0], dim=-1)
-            rotation = axis_angle_to_matrix(ray * torch.as_tensor(turn, dtype=dtype)[:, None])
-            old = axis_angle_to_matrix(orient)
-            new = rotation @ old
-            pose = pose.clone()
-            pose[:, 0] = matrix_to_axis_angle(new.transpose(1, 2) @ old @ axis_angle_to_matrix(pose[:, 0]))
-            orient = matrix_to_axis_angle(new)
-            moved = model(betas, pose, orient, transl).keypoints
-            transl = transl + (keypoints[:, 0] - moved[:, 0])
+            pose, orient, transl = turn_forearm(model, betas, pose, orient, transl, torch.as_tensor(turn, dtype=dtype))
     turned = dataclasses.replace(estimate, pose=pose.numpy(), global_orient=orient.numpy(), transl=transl.numpy())
     return turned, {"frames": int(found.sum()), "median_degrees": float(np.degrees(np.median(np.abs(total))))}
