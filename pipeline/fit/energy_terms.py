@@ -16,12 +16,13 @@ import torch
 
 from ..formats.hand_model_file import ELBOW_KEYPOINT_NAME
 from ..handmodel.rotations import axis_angle_to_matrix
+from ..render.rasterize import project
 from . import losses
+from .forearm_mask import MIDDLE_KNUCKLE, forearm_targets
 from .schedule import StageKind
 
 # what a term can need from a batch beyond the silhouette render (the energy makes only what is needed)
 SHADED = "shaded"              # the avatar rendered with its textures and light ("rgb")
-MIDDLE_KNUCKLE = 9             # keypoint index of the middle finger's knuckle (MediaPipe's order)
 
 _GEOMETRY = frozenset({StageKind.ALIGN, StageKind.GEOMETRY, StageKind.JOINT})
 _SURFACE = frozenset({StageKind.GEOMETRY, StageKind.JOINT})        # the subdivided, displaced surface
@@ -156,9 +157,6 @@ def _edge_length(batch):
 def _forearm_targets(problem):
     """((F, 2) unit directions, (F,) bool) where each frame's mask takes the forearm from the
     wrist (forearm_mask.py), with the wrist and knuckle of the avatar as the problem starts."""
-    from ..render.rasterize import project
-    from .forearm_mask import forearm_targets
-
     avatar, clip = problem.avatar, problem.clip
     with torch.no_grad():
         _, keypoints = avatar.posed_coarse(torch.arange(len(clip.frames), device=clip.images.device))
@@ -177,8 +175,6 @@ def _has_forearm(problem):
 # outlines that already nearly agree, and nothing else tells the forearm where to point
 @_term("forearm_direction", 1.0, _GEOMETRY | {StageKind.HELD_OUT}, prepare=_forearm_targets, applies=_has_forearm)
 def _forearm_direction(batch):
-    from ..render.rasterize import project
-
     targets, found = batch.problem.term_data["forearm_direction"]
     elbow = batch.problem.avatar.model.data.keypoint_names.index(ELBOW_KEYPOINT_NAME)
     pixels = project(batch.keypoints[:, [0, elbow]], batch.problem.clip.K[batch.frames])

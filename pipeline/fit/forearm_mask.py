@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+MIDDLE_KNUCKLE = 9      # keypoint index of the middle finger's knuckle (MediaPipe's order)
 FOREARM_START = 0.5     # palm lengths beyond the wrist where the mask counts as forearm
 MIN_FOREARM = 0.3       # forearm pixels needed, in palm lengths squared
 MIN_EXIT = 0.1          # pixels on the image's edge needed for an exit, in palm lengths

@@ -17,13 +17,12 @@ import dataclasses
 import numpy as np
 import torch
 
-from ..fit.forearm_mask import forearm_targets
+from ..fit.forearm_mask import MIDDLE_KNUCKLE, forearm_targets
 from ..formats.hand_model_file import ELBOW_KEYPOINT_NAME
 from ..handmodel.lbs import HandModel
 from ..handmodel.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from ..render.rasterize import project
 
-MIDDLE_KNUCKLE = 9
 ROUNDS = 2          # the turn about the wrist's ray is exact at the wrist's depth; a second round corrects the rest
 
 
