@@ -43,11 +43,12 @@ def test_each_stage_kind_says_what_moves():
 
 
 def test_the_held_out_stage_counts_the_data_terms_and_the_anchor_only():
-    """Held-out frames fit pose and light to what the frames show; the avatar's regularisers and
-    the temporal terms (over frames the held-out ones are not neighbours of) stay out."""
+    """Held-out frames fit pose and light to what the frames show (the forearm's direction in the
+    mask among it); the avatar's regularisers and the temporal terms (over frames the held-out
+    ones are not neighbours of) stay out."""
     settings = settings_for("fast", 30)
     assert [term.name for term in terms_for(StageKind.HELD_OUT, settings)] == [
-        "silhouette", "keypoint_anchor", "photometric", "perceptual"]
+        "silhouette", "keypoint_anchor", "forearm_direction", "photometric", "perceptual"]
     assert "photometric" not in [term.name for term in terms_for(StageKind.GEOMETRY, settings)]
     no_photometric = dataclasses.replace(settings, weights={**settings.weights, "photometric": 0.0})
     assert "photometric" not in [term.name for term in terms_for(StageKind.JOINT, no_photometric)]
