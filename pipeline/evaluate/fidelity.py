@@ -241,24 +241,27 @@ def framing(truth_model, pose, azimuth, elevation, size=SIZE) -> Framing:
     return Framing(K, orient, joint_pose, shift, distance, size)
 
 
-def render_posed(subjects, truth_model, pose, azimuth, elevation, size=SIZE):
+def render_posed(subjects, truth_model, pose, azimuth, elevation, size=SIZE, shading_normals=False):
     """[(rgb, alpha) (1, H, W, C)] of each (HandModel, Appearance) in `subjects` in `pose` from a
-    view, all placed alike (framing()) and lit by a point light up and left of the camera."""
+    view, all placed alike (framing()) and lit by a point light up and left of the camera; with
+    `shading_normals`, (rgb, alpha, shading normal) each."""
     frame = framing(truth_model, pose, azimuth, elevation, size)
     d = frame.distance
-    return render_framed(subjects, frame, Light(torch.tensor([0.3 * d, -0.4 * d, 0.2 * d]), torch.tensor(AMBIENT)))
+    return render_framed(subjects, frame, Light(torch.tensor([0.3 * d, -0.4 * d, 0.2 * d]), torch.tensor(AMBIENT)),
+                         shading_normals)
 
 
-def render_framed(subjects, frame: Framing, light):
+def render_framed(subjects, frame: Framing, light, shading_normals=False):
     """[(rgb, alpha) (1, H, W, C)] of each (HandModel, Appearance) in `subjects` placed by `frame`
-    under `light`, over black."""
+    under `light`, over black; with `shading_normals`, (rgb, alpha, shading normal) each."""
     images = []
+    outputs = ("rgb", "alpha") + (("shading_normal",) if shading_normals else ())
     with torch.no_grad():
         for model, appearance in subjects:
             vertices = model(pose=frame.pose, global_orient=frame.global_orient).vertices + frame.shift
             out = render(vertices, RenderMesh.from_model_data(model.data), frame.K, frame.size, frame.size,
-                         outputs=("rgb", "alpha"), appearance=appearance, light=light, background=torch.zeros(3))
-            images.append((out["rgb"], out["alpha"]))
+                         outputs=outputs, appearance=appearance, light=light, background=torch.zeros(3))
+            images.append(tuple(out[name] for name in outputs))
     return images
 
 
@@ -292,22 +295,6 @@ def shading_detail(normals, alpha):
     if not core.any():
         return 0.0
     return float(np.square(normals - average).sum(-1)[core].mean())
-
-
-def shading_details(subjects, truth_model, pose, azimuth, elevation, size=SIZE):
-    """[shading_detail] of each (HandModel, Appearance) in `subjects` in `pose` from a view,
-    placed as render_posed places them."""
-    frame = framing(truth_model, pose, azimuth, elevation, size)
-    d = frame.distance
-    light = Light(torch.tensor([0.3 * d, -0.4 * d, 0.2 * d]), torch.tensor(AMBIENT))
-    details = []
-    with torch.no_grad():
-        for model, appearance in subjects:
-            vertices = model(pose=frame.pose, global_orient=frame.global_orient).vertices + frame.shift
-            out = render(vertices, RenderMesh.from_model_data(model.data), frame.K, frame.size, frame.size,
-                         outputs=("rgb", "alpha", "shading_normal"), appearance=appearance, light=light)
-            details.append(shading_detail(out["shading_normal"][0].numpy(), out["alpha"][0, ..., 0].numpy()))
-    return details
 
 
 # ----------------------------------------------------------------------------- texture
@@ -368,17 +355,20 @@ def evaluate_fidelity(avatar_folder, sequence, picture=True, cycles=False):
     details = []     # (avatar, avatar without its normal map, truth) per pose and view
     for name, pose in poses.items():
         for view, (azimuth, elevation) in VIEWS.items():
-            (a_rgb, a_alpha), (raw_rgb, _), (s_rgb, s_alpha), (c_rgb, c_alpha), (t_rgb, t_alpha) = render_posed(
-                [(avatar_model, scaled), (avatar_model, appearance), (avatar_model, shape_alone),
-                 (truth_model, albedo_alone), (truth_model, truth_appearance)], truth_model, pose, azimuth, elevation)
+            (a_rgb, a_alpha, a_normal), (raw_rgb, _, _), (s_rgb, s_alpha, _), (c_rgb, c_alpha, _), \
+                (t_rgb, t_alpha, t_normal), (_, flat_alpha, flat_normal) = render_posed(
+                    [(avatar_model, scaled), (avatar_model, appearance), (avatar_model, shape_alone),
+                     (truth_model, albedo_alone), (truth_model, truth_appearance), (avatar_model, without_normal_map)],
+                    truth_model, pose, azimuth, elevation, shading_normals=True)
             scores = image_scores(a_rgb, a_alpha, t_rgb, t_alpha)
             scores["psnr_raw"] = image_scores(raw_rgb, a_alpha, t_rgb, t_alpha)["psnr"]
             rows.append({"pose": name, "view": view, **scores})
             parts["fitted_shape"].append(image_scores(s_rgb, s_alpha, t_rgb, t_alpha))
             parts["fitted_albedo"].append(image_scores(c_rgb, c_alpha, t_rgb, t_alpha))
             renders[name, view] = (a_rgb[0].numpy(), t_rgb[0].numpy())
-            details.append(shading_details([(avatar_model, appearance), (avatar_model, without_normal_map),
-                                            (truth_model, truth_appearance)], truth_model, pose, azimuth, elevation))
+            # the shading normals do not depend on the albedo: the scaled avatar's are the avatar's
+            details.append([shading_detail(normal[0].numpy(), alpha[0, ..., 0].numpy()) for normal, alpha in
+                            ((a_normal, a_alpha), (flat_normal, flat_alpha), (t_normal, t_alpha))])
     keys = ("psnr", "ssim", "iou", "psnr_overlap")
     result = {
         "geometry": {**geometry_errors(files.rig, truth.data),

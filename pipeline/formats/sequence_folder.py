@@ -119,20 +119,10 @@ class SequenceInfo:
                 problems.append(f"{name}.path is missing")
             elif kind not in ("images", "video"):
                 problems.append(f"{name}.kind must be 'images' or 'video'")
-        if self.principal_points is not None:
-            try:
-                points = np.asarray(self.principal_points, dtype=float)
-            except (TypeError, ValueError):
-                points = np.zeros(0)
-            if points.shape != (self.frame_count, 2) or not np.isfinite(points).all():
-                problems.append(f"principal_points must hold one finite (cx, cy) per frame ({self.frame_count})")
-        if self.background_colour is not None:
-            try:
-                colours = np.asarray(self.background_colour, dtype=float)
-            except (TypeError, ValueError):
-                colours = np.zeros(0)
-            if colours.shape != (self.frame_count, 3):
-                problems.append(f"background_colour must hold one (r, g, b) per frame ({self.frame_count})")
+        for name, value, columns in (("principal_points", self.principal_points, "(cx, cy)"),
+                                     ("background_colour", self.background_colour, "(r, g, b)")):
+            if value is not None and not _finite_per_frame(value, self.frame_count, columns.count(",") + 1):
+                problems.append(f"{name} must hold one finite {columns} per frame ({self.frame_count})")
         if self.valid_region is not None:
             x0, y0, x1, y1 = self.valid_region
             if not (0 <= x0 < x1 <= self.width and 0 <= y0 < y1 <= self.height):
@@ -140,6 +130,15 @@ class SequenceInfo:
                                 f"{self.width}x{self.height} image and hold pixels")
         if problems:
             raise SequenceFolderError("invalid sequence.json: " + "; ".join(problems))
+
+
+def _finite_per_frame(value, frame_count, columns) -> bool:
+    """Whether `value` reads as a finite (frame_count, columns) array."""
+    try:
+        array = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    return array.shape == (frame_count, columns) and bool(np.isfinite(array).all())
 
 
 def validity_mask(info: SequenceInfo) -> np.ndarray:
