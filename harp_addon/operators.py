@@ -107,7 +107,7 @@ class HARP_OT_fit(_Action):
         avatar = settings.avatar or bpy.path.abspath("//harp_avatar")
         actions.start_fit(context.scene.name, bpy.path.abspath(settings.sequence), bpy.path.abspath(avatar),
                           preset=settings.preset, shadows=settings.shadows, environment=settings.environment,
-                          init=settings.init,
+                          specular=settings.specular, init=settings.init,
                           python=actions.engine_python(context), resume=self.resume)
         settings.avatar = avatar
         _watch(context)

@@ -16,6 +16,10 @@ ENVIRONMENTS = [("auto", "Auto", "A room's light from every side, kept where its
                                  "(a white point light cannot explain that)"),
                 ("on", "On", "Always fit a room's light beside the point light"),
                 ("off", "Off", "One point light and an even ambient light (HARP's light)")]
+SPECULARS = [("auto", "Auto", "The skin's sheen (a roughness and a level), kept where it carries a visible share "
+                              "of the light"),
+             ("on", "On", "Always fit the skin's sheen"),
+             ("off", "Off", "A matte skin (HARP's)")]
 SIDES = [("auto", "Auto", "Tell from the footage (MediaPipe)"), ("right", "Right", ""), ("left", "Left", "")]
 RIG_KINDS = [("mixamo", "Mixamo", "Bones named mixamorig:RightHandIndex1 ..."),
              ("rigify", "Rigify", "A generated Rigify rig: the hand's IK control hand_ik.R, the fingers' FK controls "
@@ -38,6 +42,7 @@ class HarpSettings(bpy.types.PropertyGroup):
     preset: EnumProperty(name="Preset", items=PRESETS, default="fast")
     shadows: EnumProperty(name="Shadows", items=SHADOWS, default="auto")
     environment: EnumProperty(name="Room light", items=ENVIRONMENTS, default="auto")
+    specular: EnumProperty(name="Skin sheen", items=SPECULARS, default="auto")
     init: EnumProperty(name="Start from", items=INITS, default="mediapipe")
     avatar: StringProperty(name="Avatar", subtype="DIR_PATH", description="Avatar folder (written by Fit)")
     pack_on_bind: BoolProperty(name="Pack images", default=False,

@@ -28,12 +28,11 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
-from .core import avatar_folder, camera, environment_light, pose_smoothing, rotations, sequence_folder
+from .core import avatar_folder, camera, environment_light, pose_smoothing, rotations, sequence_folder, specular_lobe
 from .rig import build_hand_rig
 
 CAPTURE_TO_WORLD = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])
 FIRST_FRAME = 1
-SKIN_ROUGHNESS = 0.5       # a satin skin: between the oily shine of 0.3 and the matte of 0.7
 UV_MAP = "UVMap"           # the rig's UV layer (rig.py)
 ENVIRONMENT_IMAGE_SIZE = (64, 32)   # the baked environment light: bands 1 and 2 need no more
 TRACKED = ("objects", "meshes", "armatures", "cameras", "lights", "worlds", "materials", "images", "actions",
@@ -244,9 +243,18 @@ def _skin_material(name, files, pack):
     links.new(albedo.outputs["Color"], shader.inputs["Base Color"])
     links.new(normal_image.outputs["Color"], normal_map.inputs["Color"])
     links.new(normal_map.outputs["Normal"], shader.inputs["Normal"])
-    shader.inputs["Roughness"].default_value = SKIN_ROUGHNESS
+    set_specular_lobe(shader, files.description.get("light", {}))
     albedo.location, normal_image.location, normal_map.location = (-600, 300), (-600, -100), (-300, -100)
     return material
+
+
+def set_specular_lobe(shader, light):
+    """Give a Principled BSDF the sheen of the fit's `light` (avatar.json's): its lobe's roughness
+    and level on single-scattering GGX, the lobe the fit renders (formats/specular_lobe.py); a fit
+    that found none is matte; a folder from before the lobe keeps a satin skin."""
+    shader.distribution = "GGX"
+    for name, value in specular_lobe.principled_inputs(light).items():
+        shader.inputs[name].default_value = value
 
 
 def _fitted_light(name, collection, space, files, scene):

@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from .formats import avatar_folder as av
-from .formats import environment_light
+from .formats import environment_light, specular_lobe
 from .formats import hand_model_file as fmt
 from .handmodel.lbs import HandModel
 from .handmodel.poses import NAMED_POSES
@@ -71,9 +71,12 @@ def render_avatar(folder, out, pose="rest", frame=None, azimuth=0.0, elevation=0
         environment = environment_light.from_description(fitted)
         if environment is not None:   # the fitted room, fixed to the camera as the light is: the hand turns in it
             environment = torch.as_tensor(environment, dtype=torch.float32)
+        lobe = specular_lobe.from_description(fitted)
+        specular = None if lobe is None else tuple(torch.tensor(value) for value in lobe)
         images = render(vertices, RenderMesh.from_model_data(model.data), K, size, size, outputs=("rgb",),
                         appearance=appearance,
-                        light=Light(light_position, ambient, shadows=use_shadows, environment=environment),
+                        light=Light(light_position, ambient, shadows=use_shadows, environment=environment,
+                                    specular=specular),
                         background=torch.tensor(background))
     image = (images["rgb"][0].clamp(0, 1).numpy() * 255).round().astype(np.uint8)
     out = Path(out)

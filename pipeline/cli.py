@@ -51,7 +51,8 @@ def _fit(args):
                  device=args.device, shadows=args.shadows, hold_out_every=args.hold_out_every,
                  known_appearance=args.known_appearance, observers=observers, max_steps=args.max_steps,
                  exposure=args.exposure, solve_albedo=args.solve_albedo, budget_seconds=args.budget,
-                 validation_frames=args.validation_frames, workers=args.workers, environment=args.environment)
+                 validation_frames=args.validation_frames, workers=args.workers, environment=args.environment,
+                 specular=args.specular)
     print(f"wrote {args.out} in {report['total_seconds']:.0f} s: {metrics_line(report['metrics'])}")
 
 
@@ -181,6 +182,10 @@ def build_parser():
                      help="an environment light (a room's light from every side, spherical harmonics) beside the "
                           "point light: auto (default) keeps it where its colour changes with direction (a white "
                           "point light cannot explain that), on, or off (docs/fidelity.md)")
+    fit.add_argument("--specular", choices=("auto", "on", "off"), default=None,
+                     help="the skin's specular lobe (a fitted roughness and sheen, carried into Blender's Principled "
+                          "BSDF): auto (default) keeps it where it carries a visible share of the light, on, or off "
+                          "(docs/fidelity.md)")
     fit.add_argument("--resume", action="store_true", help="continue from the avatar folder's checkpoint")
     fit.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar", help=PROGRESS_HELP)
     fit.add_argument("--threads", type=int, metavar="N", help=THREADS_HELP)

@@ -16,7 +16,7 @@ import torch
 
 from synth.viewpoint import place_hand, view_rotation
 
-from ..formats import environment_light
+from ..formats import environment_light, specular_lobe
 from ..formats import sequence_folder as seq
 from ..formats.camera import project
 from ..handmodel.lbs import HandModel
@@ -71,7 +71,7 @@ def posed_box(model, pose, betas):
 
 
 def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=(0.0, 0.0), azimuth=0.0, betas=None,
-               turn_degrees=TURN_DEGREES, mode="hand", environment=None):
+               turn_degrees=TURN_DEGREES, mode="hand", environment=None, specular=None):
     """Render `frames` frames of the hand in `pose` ((16, 3) or (F, 16, 3) axis-angle, radians,
     right hand) into the sequence folder `folder` with its exact ground truth (gt.npz,
     gt_albedo.png). The hand (its bounding box in frame 0's pose, centred) is 80% of the image
@@ -80,7 +80,8 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
     `azimuth` (degrees) turns the view about the hand's long axis (90: from the thumb side);
     `mode` "arm" renders the hand with its forearm (framed as a whole); `betas` (one number: every
     shape coefficient) default to the average hand; `environment` (8, 3) adds an environment light
-    (formats/environment_light.py) to the point light and ambient. Returns the SequenceInfo."""
+    (formats/environment_light.py) to the point light and ambient; `specular` (roughness, level)
+    gives the skin a specular lobe (formats/specular_lobe.py). Returns the SequenceInfo."""
     model = HandModel.load(mode, "right", dtype=torch.float64)
     betas = np.broadcast_to(np.asarray(0.0 if betas is None else betas, dtype=np.float64), (model.num_betas,)).copy()
     pose = np.broadcast_to(np.asarray(pose, dtype=np.float64), (frames, 16, 3)).copy()
@@ -101,7 +102,9 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
                     torch.as_tensor(transl))
         albedo = mottled_albedo()
         light = Light(torch.tensor([0.1, -0.2, 0.0], dtype=torch.float64), torch.tensor(AMBIENT, dtype=torch.float64),
-                      environment=None if environment is None else torch.as_tensor(environment, dtype=torch.float64))
+                      environment=None if environment is None else torch.as_tensor(environment, dtype=torch.float64),
+                      specular=None if specular is None else tuple(torch.tensor(float(v), dtype=torch.float64)
+                                                                   for v in specular))
         images = render(out.vertices, RenderMesh.from_model_data(model.data, dtype=torch.float64),
                         torch.as_tensor(K), size, size, outputs=("rgb", "alpha"),
                         appearance=Appearance(torch.as_tensor(albedo)), light=light,
@@ -119,7 +122,8 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
         mode=mode, side="right", betas=betas, global_orient=global_orient, transl=transl, pose=pose,
         keypoints3d=keypoints3d, keypoints2d=keypoints2d, vertices=out.vertices.numpy(),
         light={"preset": "pipeline/evaluate/exact_clips.py", "position": [0.1, -0.2, 0.0], "ambient": AMBIENT,
-               "environment": environment_light.to_description(environment)}))
+               "environment": environment_light.to_description(environment),
+               specular_lobe.KEY: specular_lobe.to_description(*(specular or (None, None)))}))
     seq.write_png(folder / seq.GT_ALBEDO_FILE, _to_uint8(albedo.transpose(1, 2, 0)))
     seq.write_sequence_info(folder, info)
     return info

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..fit.avatar import LIGHT, SHAPE, SWITCHES, TEXTURES, Avatar
+from ..fit.avatar import LIGHT, MATERIAL, SHAPE, SWITCHES, TEXTURES, Avatar
 from ..fit.checkpoint import FitState
 from ..fit.pose_interpolation import start_from_neighbours
 from ..fit.outputs import score_renders, write_grid
@@ -41,7 +41,7 @@ HELD_OUT_TERMS = tuple(name for name, term in ENERGY_TERMS.items() if StageKind.
 # taken from the fit, never changed (the point light is taken, then fitted). The environment light is the
 # room's and stays as fitted: refined on a few held-out frames its 24 coefficients ran off (exact room clip,
 # frames 4 and 9: to 2-3 times their fitted size, held-out PSNR 25.30 dB against 25.87 with them kept)
-FROZEN = SHAPE + TEXTURES + ("environment",)
+FROZEN = SHAPE + TEXTURES + MATERIAL + ("environment",)   # the specular lobe is the skin's: as fitted
 PROTOCOLS = ("neighbours", "keypoints")
 KEYPOINT_PROTOCOL_STEPS = 100   # the keypoints protocol's fixed steps
 CONVERGED_WINDOW = 10           # the neighbours protocol stops when the mean loss of the last window

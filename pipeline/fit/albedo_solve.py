@@ -28,6 +28,10 @@ the coefficients c. For a fixed albedo, c is a linear least-squares problem of 8
 colour over every pixel; the solve alternates the two (ENVIRONMENT_ROUNDS), so that a texel's
 albedo cannot take up the light's change across the frames that show it, as it can under Adam
 (the appearance stage moves both by small steps).
+
+The specular lobe (formats/specular_lobe.py) adds a white sheen that does not scale with the
+albedo: I = S * albedo + g P, P the lobe's share at the pixel. Its part g P, fixed by the fitted
+geometry, light and lobe, is taken off each pixel's colour before the solve.
 docs/fidelity.md has the figures.
 """
 from __future__ import annotations
@@ -37,7 +41,7 @@ import dataclasses
 import torch
 
 from ..formats.environment_light import relative_strength
-from ..render.renderer import render
+from ..render.renderer import Appearance, render
 from ..render.shading import environment_basis_values
 from ..render.texture import bilinear_texels
 
@@ -163,13 +167,15 @@ def _observations(problem, shadows, batch_size, size):
     avatar, clip = problem.avatar, problem.clip
     appearance = dataclasses.replace(avatar.appearance(), albedo=torch.ones_like(avatar.albedo))
     light = avatar.light(shadows)
-    environment = light.environment
+    environment, specular = light.environment, light.specular
+    sheen_only = Appearance(torch.zeros_like(avatar.albedo), appearance.normal_map)   # colour = the lobe's share
     outputs = ("rgb", "uv", "alpha") + (() if environment is None else ("shading_normal",))
     parts = []
     for batch in torch.arange(len(problem.frames), device=avatar.albedo.device).split(batch_size):
         vertices, _ = avatar.posed(batch)
         images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=outputs,
-                        appearance=appearance, light=dataclasses.replace(light, environment=None), antialiased=False)
+                        appearance=appearance, light=dataclasses.replace(light, environment=None, specular=None),
+                        antialiased=False)
         gain = avatar.exposure_gain(batch) if problem.exposure_on else torch.ones_like(avatar.exposure_gain(batch))
         gain = gain.expand_as(images["rgb"])
         base = images["rgb"] * gain
@@ -182,7 +188,13 @@ def _observations(problem, shadows, batch_size, size):
         if clip.valid is not None:
             usable = usable & (clip.valid[..., 0] > 0.5)
         usable = usable & (shading.min(-1).values > MIN_SHADING)
-        parts.append((images["uv"][usable], shading[usable], clip.images[batch][usable])
+        colour = clip.images[batch]
+        if specular is not None:
+            sheen = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=("rgb",),
+                           appearance=sheen_only, light=dataclasses.replace(light, environment=None),
+                           antialiased=False)["rgb"]
+            colour = colour - gain * sheen
+        parts.append((images["uv"][usable], shading[usable], colour[usable])
                      + (() if environment is None else (base[usable], gain[usable], basis[usable])))
     uv, shading, colour, *environment_parts = (torch.cat(column) for column in zip(*parts))
     rows, columns, weights = bilinear_texels(uv, size)

@@ -15,7 +15,8 @@ Per frame: global rotation, translation, joint rotations (the wrist's only in ha
 mode), and the camera's exposure (a colour gain; fitted only when the clip needs it). Shared:
 shape, displacements, albedo texture, normal map, light position, ambient ratio, and the
 environment light (spherical harmonics, formats/environment_light.py; in use only while the
-`environment_on` switch is set).
+`environment_on` switch is set), and the skin's specular lobe (roughness and level,
+formats/specular_lobe.py; in use only while `specular_on` is set).
 """
 from __future__ import annotations
 
@@ -23,20 +24,25 @@ import numpy as np
 import torch
 
 from ..formats import environment_light
+from ..formats.specular_lobe import LEVEL_MAX, ROUGHNESS_RANGE
 from ..handmodel.lbs import HandModel
 from ..render.renderer import Appearance, Light, RenderMesh
 from ..render.shading import vertex_normals
 
 SKIN_RGB = (232 / 255, 190 / 255, 172 / 255)
 INITIAL_AMBIENT = 0.6
+INITIAL_ROUGHNESS = 0.5      # a satin skin
+INITIAL_SPECULAR_LEVEL = 0.2   # a faint sheen (F0 0.016): a clip without one takes it away in a few steps
 # the avatar's parameters by kind
 POSE = ("global_orient", "transl", "pose")
 PER_FRAME = POSE + ("exposure",)
 SHAPE = ("betas", "displacement")
 TEXTURES = ("albedo", "normal_map")
 LIGHT = ("light_position", "ambient_logit", "environment")
-APPEARANCE = TEXTURES + LIGHT
-SWITCHES = ("environment_on",)   # buffers that say which parts of the light are in use (saved with the avatar)
+MATERIAL = ("roughness_logit", "specular_logit")   # the skin's specular lobe
+APPEARANCE = TEXTURES + LIGHT + MATERIAL
+# buffers that say which parts of the light and material are in use (saved with the avatar)
+SWITCHES = ("environment_on", "specular_on")
 
 
 class Avatar(torch.nn.Module):
@@ -73,6 +79,10 @@ class Avatar(torch.nn.Module):
         self.ambient_logit = parameter(np.log(INITIAL_AMBIENT / (1 - INITIAL_AMBIENT)))
         self.environment = parameter(np.zeros((environment_light.COEFFICIENTS, 3)))
         self.register_buffer("environment_on", torch.zeros((), dtype=torch.bool, device=device))
+        low, high = ROUGHNESS_RANGE
+        self.roughness_logit = parameter(_logit((INITIAL_ROUGHNESS - low) / (high - low)))
+        self.specular_logit = parameter(_logit(INITIAL_SPECULAR_LEVEL / LEVEL_MAX))
+        self.register_buffer("specular_on", torch.zeros((), dtype=torch.bool, device=device))
         # the wrist joint rotates the hand against the forearm: free only with a forearm
         self.register_buffer("pose_mask", torch.ones(16, 3, dtype=dtype, device=device))
         if model.mode == "hand":
@@ -89,6 +99,19 @@ class Avatar(torch.nn.Module):
     def ambient(self):
         return torch.sigmoid(self.ambient_logit)
 
+    @property
+    def roughness(self):
+        low, high = ROUGHNESS_RANGE
+        return low + (high - low) * torch.sigmoid(self.roughness_logit)
+
+    @property
+    def specular_level(self):
+        return LEVEL_MAX * torch.sigmoid(self.specular_logit)
+
+    def specular(self):
+        """(roughness, level) of the skin's specular lobe, or None while it is switched off."""
+        return (self.roughness, self.specular_level) if bool(self.specular_on) else None
+
     def appearance(self, normal_map=True):
         unit = torch.nn.functional.normalize(self.normal_map, dim=0, eps=1e-12)
         return Appearance(self.albedo.clamp(0, 1), unit if normal_map else None)
@@ -100,7 +123,7 @@ class Avatar(torch.nn.Module):
 
     def light(self, shadows=False):
         return Light(self.light_position, self.ambient, shadows=shadows,
-                     environment=self.environment if bool(self.environment_on) else None)
+                     environment=self.environment if bool(self.environment_on) else None, specular=self.specular())
 
     @torch.no_grad()
     def switch_environment(self, on: bool):
@@ -109,6 +132,12 @@ class Avatar(torch.nn.Module):
         self.environment_on.fill_(bool(on))
         if not on:
             self.environment.zero_()
+
+    @torch.no_grad()
+    def switch_specular(self, on: bool):
+        """Use the specular lobe or not; switched off, it stays out of every render (its two
+        parameters get no gradient, so the optimiser leaves them)."""
+        self.specular_on.fill_(bool(on))
 
     def posed(self, batch):
         """(vertices (B, V, 3), keypoints (B, K, 3)) of the frames `batch` (indices into the fit's
@@ -142,3 +171,7 @@ class Avatar(torch.nn.Module):
         """Personalised rest vertices (V, 3), detached: what the avatar folder's rig holds."""
         with torch.no_grad():
             return self.displaced_rest()
+
+
+def _logit(p):
+    return float(np.log(p / (1 - p)))

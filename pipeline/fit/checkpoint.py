@@ -15,17 +15,20 @@ from pathlib import Path
 import torch
 
 from ..formats.environment_light import COEFFICIENTS as ENVIRONMENT_COEFFICIENTS
+from ..formats.specular_lobe import LEVEL_MAX, ROUGHNESS_RANGE
+from .avatar import INITIAL_ROUGHNESS, INITIAL_SPECULAR_LEVEL
 from .problem import FitError
 from .schedule import Schedule
 from .settings import FitSettings
 
 CHECKPOINT_FILE = "checkpoint.pt"
 CHECKPOINT_FORMAT = "harp-fit-checkpoint"
-CHECKPOINT_VERSION = 5          # 3: per-frame exposure gains (avatar "exposure", settings.exposure); 4: the
+CHECKPOINT_VERSION = 6          # 3: per-frame exposure gains (avatar "exposure", settings.exposure); 4: the
 #                                 schedule in force in the state (a budget no longer rewrites the settings),
-#                                 the validation checks and the best one's avatar; 5: the environment light
-READABLE_VERSIONS = (2, 3, 4, 5)   # a finished fit of version 2 reads as one with its gains off, before 5 without
-#                                    an environment light
+#                                 the validation checks and the best one's avatar; 5: the environment light;
+#                                 6: the specular lobe
+READABLE_VERSIONS = (2, 3, 4, 5, 6)   # a finished fit of version 2 reads as one with its gains off, before 5
+#                                       without an environment light, before 6 without a specular lobe
 
 
 @dataclasses.dataclass
@@ -62,6 +65,7 @@ class FitState:
     validation: list = dataclasses.field(default_factory=list)   # validation.Validator's checks, in order
     best: dict | None = None            # the best check's psnr, stage and step (its avatar: Checkpoint.best_avatar)
     environment: dict | None = None     # `auto` environment light, once decided: on, relative_strength
+    specular: dict | None = None        # `auto` specular lobe, once decided: on, share, roughness, level
 
     @classmethod
     def fresh(cls, schedule: Schedule, shadows="auto"):
@@ -135,8 +139,22 @@ def load_checkpoint(path, device=None) -> Checkpoint:
         for saved_avatar in (avatar, saved.get("best_avatar")):
             if saved_avatar is not None:
                 _without_environment(saved_avatar)
+    if version < 6:      # no specular lobe
+        for saved_avatar in (avatar, saved.get("best_avatar")):
+            if saved_avatar is not None:
+                _without_specular(saved_avatar)
     return Checkpoint(settings, FitState.from_dict(state), avatar, saved["optimiser"], saved["generator"],
                       saved.get("best_avatar"), version)
+
+
+def _without_specular(avatar_state: dict):
+    """An avatar state_dict from before the specular lobe, given one at its initial values, off."""
+    like = avatar_state["ambient_logit"]
+    low, high = ROUGHNESS_RANGE
+    for name, value in (("roughness_logit", (INITIAL_ROUGHNESS - low) / (high - low)),
+                        ("specular_logit", INITIAL_SPECULAR_LEVEL / LEVEL_MAX)):
+        avatar_state[name] = torch.logit(torch.tensor(value, dtype=like.dtype, device=like.device))
+    avatar_state["specular_on"] = torch.zeros((), dtype=torch.bool, device=like.device)
 
 
 def _without_environment(avatar_state: dict):

@@ -31,6 +31,7 @@ from .problem import FitError, FitProblem, build_problem
 from .progress import Progress
 from .schedule import SHADOWS_DECIDED_IN, step_kind
 from .settings import settings_for
+from .specular_share import specular_share
 from .stage_run import StageRun
 from .texture_fill import fill_avatar_albedo
 from .validation import Validator, restore_best
@@ -43,6 +44,12 @@ ENVIRONMENT_THRESHOLD = 0.015
 # and on fewer fitted frames than this it stays off: a few views cannot tell a room's light from the albedo (the
 # add-on tests' 4-frame, 12-step fit of a clip under a white world found a "room" of colour strength 0.044)
 ENVIRONMENT_MIN_FRAMES = 8
+# an `auto` specular lobe whose highlight (specular_share.py: the 99th percentile of its share of each pixel's
+# colour on the fitted frames) is below this is switched off; the same few-views rule as the environment's.
+# Exact clips (tests/test_fit_specular.py's, 200 steps a stage): 0.134 fitted where the skin was drawn with an
+# oily lobe (roughness 0.4, level 0.6), 0.015 with a faint satin one (0.6, 0.3; fitted PSNR on and off within
+# 0.02 dB), 0.003 without one
+SPECULAR_THRESHOLD = 0.03
 KNOWN_APPEARANCE = SHAPE + APPEARANCE   # what a fit with known appearance takes from another fit, frozen
 # settings of what runs after the stages: a resumed fit may change them (they do not touch the checkpoint)
 AFTER_THE_STAGES = ("solve_albedo",)
@@ -205,8 +212,10 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
                      f"(mean change {state.albedo_solve['mean_change']:.3f})"
                      + (" with the environment light" if "environment_strength" in state.albedo_solve else ""))
         _decide_environment(problem, state, reporter, solved=True)
+        _decide_specular(problem, state, reporter, solved=True)
         save()
     _decide_environment(problem, state, reporter, solved=False)     # without an albedo solve: as the stages left it
+    _decide_specular(problem, state, reporter, solved=False)
     if state.texture_fill is None and not problem.known_appearance:
         state.texture_fill = fill_avatar_albedo(problem.avatar, problem.clip)
         reporter.log(f"albedo: {state.texture_fill['unseen_fraction']:.0%} of the texels never seen, filled "
@@ -239,6 +248,7 @@ def _set_up(sequence, job: FitJob, overrides) -> FitSetup:
         # its light comes with its shadows and environment decisions
         settings = dataclasses.replace(settings, shadows="on" if known.state.shadows.on else "off",
                                        environment="on" if bool(known.avatar["environment_on"]) else "off",
+                                       specular="on" if bool(known.avatar["specular_on"]) else "off",
                                        displacement_grid=known.settings.displacement_grid)   # its displacements' grid
     recipe = dict(sequence=sequence, settings=settings, frames=frames, device=device, shared=shared,
                   frozen=tuple(shared))
@@ -302,6 +312,29 @@ def _decide_environment(problem, state, reporter, solved):
                  + ("" if enough_views else f" (fewer than {ENVIRONMENT_MIN_FRAMES} frames fitted: too few views)"))
     if not on:
         avatar.switch_environment(False)
+        if solved:
+            state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on)
+
+
+def _decide_specular(problem, state, reporter, solved):
+    """`auto` specular lobe, decided once after the stages (after the albedo solve, which takes
+    the lobe's sheen off the frames, when `solved`): kept where it carries at least
+    SPECULAR_THRESHOLD of the colour where it shines (specular_share.py) on at least
+    ENVIRONMENT_MIN_FRAMES fitted frames, else switched off, and the albedo solved again without it."""
+    if state.specular is not None or problem.settings.specular != "auto":
+        return
+    avatar = problem.avatar
+    share = specular_share(problem, state.shadows.on)
+    roughness, level = avatar.roughness.item(), avatar.specular_level.item()
+    enough_views = len(problem.frames) >= ENVIRONMENT_MIN_FRAMES
+    on = share["highlight"] >= SPECULAR_THRESHOLD and enough_views
+    state.specular = {"on": on, "share": share["mean"], "highlight": share["highlight"], "roughness": roughness,
+                      "level": level}
+    reporter.log(f"specular lobe auto: roughness {roughness:.2f}, level {level:.2f}: {100 * share['highlight']:.1f}% "
+                 f"of the colour where it shines, {100 * share['mean']:.1f}% of all -> {'on' if on else 'off'}"
+                 + ("" if enough_views else f" (fewer than {ENVIRONMENT_MIN_FRAMES} frames fitted: too few views)"))
+    if not on:
+        avatar.switch_specular(False)
         if solved:
             state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on)
 

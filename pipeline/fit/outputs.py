@@ -14,7 +14,7 @@ import torch
 
 from .. import metrics
 from ..formats import avatar_folder as av
-from ..formats import environment_light
+from ..formats import environment_light, specular_lobe
 from ..formats.fit_report import HELD_OUT_FRAMES, write_report
 from ..render.renderer import render
 
@@ -110,6 +110,8 @@ def write_outputs(out, problem, state, held_out=(), estimate=None, validation_fr
         "albedo_solve": state.albedo_solve,
         "environment": {"requested": settings.environment, "decision": state.environment,
                         "coefficients": environment_light.to_description(avatar.light().environment)},
+        "specular": {"requested": settings.specular, "decision": state.specular,
+                     "lobe": specular_lobe.to_description(*(avatar.specular() or (None, None)))},
         "exposure": {"decision": problem.exposure_note,
                      "gain": torch.exp(avatar.exposure.detach()).cpu().tolist() if problem.exposure_on else None},
         "mask_cut_frames": problem.mask_cut_frames,
@@ -140,7 +142,8 @@ def _write_avatar(out, problem, state, shadows):
     description = {
         "mode": model_data.mode, "side": model_data.side, "betas": betas.tolist(),
         "light": {"position": avatar.light_position.detach().cpu().tolist(), "ambient": avatar.ambient.item(),
-                  "shadows": shadows, "environment": environment_light.to_description(avatar.light().environment)},
+                  "shadows": shadows, "environment": environment_light.to_description(avatar.light().environment),
+                  specular_lobe.KEY: specular_lobe.to_description(*(avatar.specular() or (None, None)))},
         "camera": camera_description(clip),
         "footage": {"sequence": str(problem.sequence.resolve()), "fps": clip.info.fps,
                     "frame_count": clip.info.frame_count, "width": clip.info.width, "height": clip.info.height},

@@ -21,7 +21,7 @@ from ..handmodel.lbs import HandModel
 from ..handmodel.subdivision import midpoint_parents
 from ..handmodel.uv_atlas import uv_mask as atlas_mask
 from ..render.rasterize import project
-from .avatar import Avatar
+from .avatar import MATERIAL, Avatar
 from .clip_data import ClipData, load_clip
 from .energy_terms import ENERGY_TERMS, is_on
 from .losses import PHOTOMETRIC_EROSION, eroded_mask
@@ -120,9 +120,11 @@ def build_problem(sequence, settings: FitSettings, frames, device=None, shared=N
         with torch.no_grad():   # a gain the photometric term alone had to find would take many steps
             avatar.exposure.copy_(exposure_measured[0])
     avatar.switch_environment(settings.environment != "off")   # `auto`: fitted until fitting.py decides
+    avatar.switch_specular(settings.specular != "off")         # likewise
     _take_shared(avatar, shared)
     frozen = tuple(frozen) + (() if settings.exposure == "on" else ("exposure",)) \
-        + (("environment",) if settings.environment == "off" else ())
+        + (("environment",) if settings.environment == "off" else ()) \
+        + (MATERIAL if settings.specular == "off" else ())
     for name in frozen:
         getattr(avatar, name).requires_grad_(False)
     with torch.no_grad():

@@ -43,6 +43,9 @@ class FitSettings:
     # coloured room it was kept on 3 seeds of 3 (fitted frames +1.0 dB), off on every clip without one
     # (the demo's 3 seeds level with `off`; docs/fidelity.md)
     environment: str = "auto"
+    # the skin's specular lobe (a roughness and a level, formats/specular_lobe.py): auto | on | off; `auto` fits
+    # it and keeps it where it carries a visible share of the light (fitting.py)
+    specular: str = "auto"
     # frames kept out of the fit and scored as it runs: the best state is written (validation.py). Off until it
     # is shown to help: with `fast` on the demo clip (3 seeds) it left held-out PSNR level (27.76 dB both), joints
     # 0.11 mm worse, 10% more time; on the sun clip it went back to an earlier state whose surface was 36% worse
@@ -76,6 +79,7 @@ class FitSettings:
         values.setdefault("validation_frames", 0)        # saved before validation inside the fit
         values.setdefault("stage_factors", {})
         values.setdefault("environment", "off")          # saved before the environment light
+        values.setdefault("specular", "off")             # saved before the specular lobe
         if "steps" in values:
             values["steps"] = tuple(values["steps"])
         return cls(**values)

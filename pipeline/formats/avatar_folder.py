@@ -3,7 +3,8 @@
 
     avatar.json    format + version, mode (hand / arm), side, shape vector, light (point light
                    position, ambient ratio, shadows, and the environment light's 8 x 3 spherical
-                   harmonics or null: formats/environment_light.py), camera (K, width, height of
+                   harmonics or null: formats/environment_light.py; the skin's specular lobe,
+                   roughness and level, or null: formats/specular_lobe.py), camera (K, width, height of
                    the fitted images), settings used, per-stage timings
     albedo.png     albedo texture, 8-bit display values (the fit treats the frames' 8-bit values
                    as linear), in the model's UV layout (v up)

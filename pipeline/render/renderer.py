@@ -93,6 +93,8 @@ class Light:
     shadow_radius: float | None = None          # radius the shadow map covers (default: the mesh's)
     # (8, 3) the environment light's spherical harmonics (formats/environment_light.py); None: none
     environment: torch.Tensor | None = None
+    # (roughness, level) of the skin's specular lobe (scalar tensors; formats/specular_lobe.py); None: none
+    specular: tuple | None = None
 
 
 def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appearance=None,
@@ -179,6 +181,11 @@ def _lit_colour(ops, points, faces, frags, position, albedo, normal, light):
     colour = ops.lit_colour(albedo, normal, position, light_position, light.ambient, visibility)
     if light.environment is not None:
         colour = colour + albedo * reference_shading.environment_shading(normal, light.environment)
+    if light.specular is not None:
+        to_light = torch.nn.functional.normalize(light_position - position, dim=-1, eps=1e-12)
+        to_camera = torch.nn.functional.normalize(-position, dim=-1, eps=1e-12)   # the camera is the origin
+        sheen = reference_shading.specular_shading(normal, to_light, to_camera, *light.specular) * (1 - light.ambient)
+        colour = colour + (sheen if visibility is None else sheen * visibility)
     return colour
 
 

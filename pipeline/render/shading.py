@@ -1,11 +1,12 @@
 """Shading formulas: vertex normals, UV tangent frames, tangent-space normal maps and the
 HARP light model  colour = albedo * (a + (1 - a) * max(0, n' . l) * V), and the environment
-light's share of it (formats/environment_light.py)."""
+light's and the specular lobe's shares of it (formats/environment_light.py, formats/specular_lobe.py)."""
 from __future__ import annotations
 
 import torch
 
 from ..formats.environment_light import basis as environment_basis
+from ..formats.specular_lobe import BASE_REFLECTANCE
 
 
 def vertex_normals(points, faces):
@@ -77,3 +78,21 @@ def environment_shading(normal, coefficients):
     """(N, 3) the environment light's share of the shading factor, sum_k c_k Y_k(n), of unit
     normals (N, 3) (camera frame) under its spherical-harmonic coefficients (8, 3)."""
     return environment_basis_values(normal) @ coefficients.to(normal.dtype)
+
+
+def specular_shading(normal, to_light, to_camera, roughness, level):
+    """(N, 1) the specular lobe's share of the colour for a light of irradiance pi, before the
+    (1 - a) V that the diffuse share also carries: pi f_s(n, l, v) max(0, n . l), f_s Principled's
+    GGX lobe of `roughness` and Specular IOR Level `level` (formats/specular_lobe.py). All
+    directions unit (N, 3), camera frame; roughness and level scalars (tensors)."""
+    half = torch.nn.functional.normalize(to_light + to_camera, dim=-1, eps=1e-12)
+    n_l = (normal * to_light).sum(-1, keepdim=True).clamp(min=0)
+    n_v = (normal * to_camera).sum(-1, keepdim=True).clamp(min=1e-4)
+    n_h = (normal * half).sum(-1, keepdim=True).clamp(min=0)
+    v_h = (to_camera * half).sum(-1, keepdim=True).clamp(min=0, max=1)
+    alpha2 = roughness.to(normal.dtype) ** 4                                   # alpha = roughness^2
+    distribution_times_pi = alpha2 / (n_h * n_h * (alpha2 - 1) + 1) ** 2       # pi * GGX D
+    visibility = 0.5 / (n_l * torch.sqrt(n_v * n_v * (1 - alpha2) + alpha2)
+                        + n_v * torch.sqrt(n_l * n_l * (1 - alpha2) + alpha2)).clamp(min=1e-8)
+    fresnel = 2 * level.to(normal.dtype) * (BASE_REFLECTANCE + (1 - BASE_REFLECTANCE) * (1 - v_h) ** 5)
+    return distribution_times_pi * visibility * fresnel * n_l
