@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bench_real_footage.py VIDEO [--work DIR] [--preset fast]
         [--hold-out-every 10] [--size 448] [--max-frames N] [--pictures DIR] [--threads 1]
-        [--environment auto|on|off] [--crop auto|frame|clip]
+        [--environment auto|on|off] [--specular auto|on|off] [--crop auto|frame|clip]
 
 1. `harp import-video VIDEO` without masks (MediaPipe landmarks + GrabCut make them),
 2. `harp init` (MediaPipe keypoints, the initial fit),
@@ -10,7 +10,7 @@
 4. `harp evaluate`: the held-out frames fitted in pose and light, scored against the built-in
    masks and the frames (PSNR / L1 / MS-SSIM in the mask, silhouette IoU).
 Prints wall time of each step and the figures; writes bench_real_footage.json into the avatar
-folder (DIR/avatar_PRESET, or DIR/avatar_PRESET_environment_SETTING with --environment). With
+folder (DIR/avatar_PRESET, with _environment_SETTING and _specular_SETTING for those options). With
 `--pictures DIR2`: DIR2/real_masks.png (masks over frames), real_fit_grid.png (fitted frames),
 real_held_out_grid.png (held-out frames). Finished steps are kept: rerun to resume.
 Measured on the MediaPipe sample video (see docs/real_footage.md).
@@ -64,6 +64,8 @@ def main(argv=None):
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1, pinned runs)")
     parser.add_argument("--environment", choices=("auto", "on", "off"), default=None,
                         help="the fit's environment light (default: the fit's default); its own avatar folder")
+    parser.add_argument("--specular", choices=("auto", "on", "off"), default=None,
+                        help="the fit's specular lobe (default: the fit's default); its own avatar folder")
     parser.add_argument("--crop", choices=("auto", "frame", "clip"), default="auto",
                         help="the import's crop (harp import-video --crop; the work folder keeps one sequence)")
     args = parser.parse_args(argv)
@@ -71,9 +73,10 @@ def main(argv=None):
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     sequence = work / "sequence"
-    avatar = work / (f"avatar_{args.preset}" + (f"_environment_{args.environment}" if args.environment else ""))
+    avatar = work / (f"avatar_{args.preset}" + (f"_environment_{args.environment}" if args.environment else "")
+                     + (f"_specular_{args.specular}" if args.specular else ""))
     figures = {"video": str(args.video), "preset": args.preset, "threads": args.threads,
-               "environment": args.environment}
+               "environment": args.environment, "specular": args.specular}
 
     if not (sequence / seq.SEQUENCE_FILE).is_file():
         timed(figures, "import", lambda: import_video(args.video, None, sequence, size=args.size,
@@ -86,7 +89,7 @@ def main(argv=None):
     if not (avatar / "report.json").is_file():
         timed(figures, "fit", lambda: fit(sequence, avatar, preset=args.preset, progress="bar",
                                           hold_out_every=args.hold_out_every, device="cpu",
-                                          environment=args.environment))
+                                          environment=args.environment, specular=args.specular))
     report = read_report(avatar)
     evaluation = timed(figures, "evaluate", lambda: evaluate_fit(avatar, sequence, device="cpu", progress="bar"))
 
@@ -102,6 +105,7 @@ def main(argv=None):
                   "l1_mean": held["l1_mean"], "ms_ssim_mean": held.get("ms_ssim_mean")})
     figures["fit_seconds_reported"] = report.get("total_seconds")
     figures["environment_decision"] = report.get("environment", {}).get("decision")
+    figures["specular_decision"] = report.get("specular", {}).get("decision")
     (avatar / "bench_real_footage.json").write_text(json.dumps(figures, indent=2))
     print(json.dumps(figures, indent=2))
     if args.pictures:

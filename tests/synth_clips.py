@@ -32,3 +32,29 @@ def exact_clip(folder, frames, size=96, turn_degrees=25):
     initialise_sequence(folder, "gt-noise", log=lambda *a: None)
     return folder
 
+
+
+def known_scene(folder):
+    """Everything an exact clip was drawn with but its light (float64 torch), for the tests that
+    recover one part of the light from it: {vertices (F, V, 3), mesh, K, height, width, frames
+    (F, H, W, 3) in [0, 1], masks (F, H, W, 1) bool, appearance (the true albedo)}."""
+    import cv2
+    import numpy as np
+    import torch
+
+    from pipeline.evaluate.exact_clips import mottled_albedo
+    from pipeline.handmodel.lbs import HandModel
+    from pipeline.render.renderer import Appearance, RenderMesh
+
+    info = seq.read_sequence_info(folder)
+    gt = seq.read_ground_truth(folder / seq.GT_FILE)
+    model = HandModel.load("hand", "right", dtype=torch.float64)
+    count = range(info.frame_count)
+    frames = torch.stack([torch.as_tensor(cv2.imread(str(seq.frame_path(folder, info, i)))[..., ::-1].copy(),
+                                          dtype=torch.float64) / 255 for i in count])
+    masks = torch.stack([torch.as_tensor(cv2.imread(str(seq.mask_path(folder, info, i)), cv2.IMREAD_GRAYSCALE) > 127)
+                         for i in count])[..., None]
+    return {"vertices": torch.as_tensor(gt.vertices, dtype=torch.float64),
+            "mesh": RenderMesh.from_model_data(model.data, dtype=torch.float64),
+            "K": torch.as_tensor(np.asarray(info.K), dtype=torch.float64), "height": info.height, "width": info.width,
+            "frames": frames, "masks": masks, "appearance": Appearance(torch.as_tensor(mottled_albedo()))}

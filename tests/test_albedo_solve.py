@@ -162,3 +162,36 @@ def test_bilinear_texels_are_the_renderers_own_lookup():
     rows, columns, weights = bilinear_texels(uv, 17)
     explicit = (texture[:, rows, columns] * weights).sum(-1).t()
     torch.testing.assert_close(explicit, sample_texture(texture, uv), atol=1e-12, rtol=0)
+
+
+def test_the_solve_takes_the_specular_sheen_off(problem):
+    """Frames drawn with an oily specular lobe: solved with the avatar's lobe, the albedo is the
+    one they were drawn with; solved as if the skin were matte, the highlights go into it."""
+    problem, truth = problem
+    avatar, matte_frames = problem.avatar, problem.clip.images
+    lobe = {"roughness_logit": torch.logit(torch.tensor((0.35 - 0.2) / 0.8)), "specular_logit": torch.logit(torch.tensor(0.9))}
+    saved = {name: getattr(avatar, name).detach().clone() for name in lobe}
+    try:
+        with torch.no_grad():
+            for name, value in lobe.items():
+                getattr(avatar, name).copy_(value)
+            avatar.switch_specular(True)
+            vertices, _ = avatar.posed(torch.arange(FRAMES))
+            problem.clip.images = render(vertices, avatar.mesh, problem.clip.K, SIZE, SIZE, outputs=("rgb",),
+                                         appearance=dataclasses.replace(avatar.appearance(), albedo=torch.as_tensor(
+                                             truth, dtype=avatar.albedo.dtype)), light=avatar.light(False))["rgb"]
+        shiny, read = solved_albedo(problem, shadows=False)
+        avatar.switch_specular(False)
+        baked, _ = solved_albedo(problem, shadows=False)
+    finally:
+        problem.clip.images = matte_frames
+        avatar.switch_specular(False)
+        with torch.no_grad():
+            for name, value in saved.items():
+                getattr(avatar, name).copy_(value)
+    read = read.numpy() & (problem.uv_mask.numpy() > 0)
+    errors = {name: np.abs(albedo.numpy() - truth).mean(0)[read] for name, albedo in (("shiny", shiny), ("baked", baked))}
+    # measured: mean 0.011 against 0.019, median 0.003 against 0.008 (the few texels the frames hardly show
+    # are as far off in both: the solve leans on the current albedo there)
+    assert errors["shiny"].mean() < 0.015 and errors["baked"].mean() > 1.5 * errors["shiny"].mean()
+    assert np.median(errors["baked"]) > 2 * np.median(errors["shiny"])

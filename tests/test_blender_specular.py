@@ -10,6 +10,7 @@ bpy = pytest.importorskip("bpy")
 
 from mathutils import Vector  # noqa: E402
 
+from cycles_sphere import render_sphere, sphere_normals  # noqa: E402
 from harp_addon import scene as harp_scene  # noqa: E402
 from pipeline.formats import specular_lobe  # noqa: E402
 from pipeline.render.shading import specular_shading  # noqa: E402
@@ -21,50 +22,20 @@ TO_LIGHT = np.array([0.35, -0.5, 0.3])     # world: x right, z up, the camera at
 
 def sphere_sheen(light, to_light, tmp_path):
     """(H, W, 3) linear radiance of a black, glossy unit sphere (the bind's Principled settings
-    for avatar.json's `light`) under a sun of strength pi shining from `to_light` (world), seen
-    by an orthographic camera from world -y; Cycles."""
+    for avatar.json's `light`) under a sun of strength pi shining from `to_light` (world), no
+    world (cycles_sphere.py)."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    scene = bpy.context.scene
-    bpy.ops.mesh.primitive_uv_sphere_add(segments=128, ring_count=64, radius=1.0)
-    sphere = bpy.context.active_object
-    bpy.ops.object.shade_smooth()
     material = bpy.data.materials.new("glossy")
-    tree = harp_scene._node_tree(material)
-    shader = next(node for node in tree.nodes if node.bl_idname == "ShaderNodeBsdfPrincipled")
+    shader = harp_scene._node_tree(material).nodes["Principled BSDF"]
     shader.inputs["Base Color"].default_value = (0.0, 0.0, 0.0, 1.0)
     harp_scene.set_specular_lobe(shader, light)
-    sphere.data.materials.append(material)
     sun_data = bpy.data.lights.new("sun", "SUN")
     sun_data.energy, sun_data.angle = float(np.pi), 0.0
     sun = bpy.data.objects.new("sun", sun_data)
-    scene.collection.objects.link(sun)
+    bpy.context.scene.collection.objects.link(sun)
     sun.rotation_mode = "QUATERNION"            # a sun shines along its local -Z: +Z towards the light
     sun.rotation_quaternion = Vector((0.0, 0.0, 1.0)).rotation_difference(Vector(to_light / np.linalg.norm(to_light)))
-    camera_data = bpy.data.cameras.new("camera")
-    camera_data.type, camera_data.ortho_scale = "ORTHO", 2.0
-    camera = bpy.data.objects.new("camera", camera_data)
-    scene.collection.objects.link(camera)
-    camera.location, camera.rotation_euler = (0.0, -5.0, 0.0), (np.pi / 2, 0.0, 0.0)
-    scene.camera = camera
-    scene.render.engine = "CYCLES"
-    scene.cycles.samples, scene.cycles.use_denoising, scene.cycles.seed = 64, False, 0
-    scene.cycles.max_bounces = 0
-    scene.render.resolution_x = scene.render.resolution_y = SIZE
-    scene.render.resolution_percentage = 100
-    scene.view_settings.view_transform = "Standard"
-    scene.render.image_settings.file_format = "OPEN_EXR"
-    scene.render.filepath = str(tmp_path / "sphere.exr")
-    bpy.ops.render.render(write_still=True)
-    image = bpy.data.images.load(str(tmp_path / "sphere.exr"))
-    return np.array(image.pixels[:], dtype=np.float64).reshape(SIZE, SIZE, 4)[::-1, :, :3]   # row 0: the top
-
-
-def sphere_normals():
-    """(inside (H, W) bool, world normals (N, 3)) of the visible unit sphere inside 0.9 of its rim."""
-    centre = (np.arange(SIZE) + 0.5) / SIZE * 2 - 1
-    z, x = -centre[:, None] * np.ones(SIZE), centre[None, :] * np.ones((SIZE, 1))
-    inside = x ** 2 + z ** 2 < 0.9 ** 2
-    return inside, np.stack([x, -np.sqrt(np.clip(1 - x ** 2 - z ** 2, 0, None)), z], -1)[inside]
+    return render_sphere(material, SIZE, 64, tmp_path)
 
 
 def fit_sheen(normals, to_light, roughness, level):
@@ -81,7 +52,7 @@ def fit_sheen(normals, to_light, roughness, level):
 def test_the_bound_skin_shines_as_the_fit_does(tmp_path, roughness, level):
     light = {specular_lobe.KEY: specular_lobe.to_description(roughness, level)}
     pixels = sphere_sheen(light, TO_LIGHT, tmp_path).mean(-1)
-    inside, normals = sphere_normals()
+    inside, normals = sphere_normals(SIZE, 0.9)
     expected = fit_sheen(normals, TO_LIGHT, roughness, level)
     error = np.abs(pixels[inside] - expected)
     peak = expected.max()

@@ -3,20 +3,18 @@ it (pipeline/evaluate/exact_clips.py), `auto` switching itself off on a clip wit
 checkpoints from before it."""
 import json
 
-import cv2
 import numpy as np
 import pytest
 import torch
 
-from pipeline.evaluate.exact_clips import AMBIENT, coloured_room, mottled_albedo, write_clip
+from pipeline.evaluate.exact_clips import AMBIENT, coloured_room, write_clip
 from pipeline.fit.checkpoint import CHECKPOINT_FILE, load_checkpoint
 from pipeline.fit.fitting import ENVIRONMENT_THRESHOLD, fit
 from pipeline.formats import environment_light as el
-from pipeline.formats import sequence_folder as seq
-from pipeline.handmodel.lbs import HandModel
 from pipeline.init import initialise_sequence
-from pipeline.render.renderer import Appearance, Light, RenderMesh, render
+from pipeline.render.renderer import Light, render
 from synth.motions import OPEN
+from synth_clips import known_scene
 
 
 @pytest.fixture(scope="module")
@@ -30,29 +28,19 @@ def clips(tmp_path_factory):
 def recovered_environment(folder, steps=150):
     """The environment light fitted to a clip with everything else known (its true surface,
     albedo, point light and ambient): Adam on the L1 difference inside the masks."""
-    info = seq.read_sequence_info(folder)
-    gt = seq.read_ground_truth(folder / seq.GT_FILE)
-    model = HandModel.load("hand", "right", dtype=torch.float64)
-    vertices = torch.as_tensor(gt.vertices, dtype=torch.float64)
-    frames = torch.stack([torch.as_tensor(cv2.imread(str(seq.frame_path(folder, info, i)))[..., ::-1].copy(),
-                                          dtype=torch.float64) / 255 for i in range(info.frame_count)])
-    masks = torch.stack([torch.as_tensor(cv2.imread(str(seq.mask_path(folder, info, i)), cv2.IMREAD_GRAYSCALE) > 127)
-                         for i in range(info.frame_count)])[..., None]
+    scene = known_scene(folder)
     environment = torch.zeros(el.COEFFICIENTS, 3, dtype=torch.float64, requires_grad=True)
     optimiser = torch.optim.Adam([environment], lr=0.02)
-    mesh = RenderMesh.from_model_data(model.data, dtype=torch.float64)
-    K = torch.as_tensor(np.asarray(info.K), dtype=torch.float64)
-    appearance = Appearance(torch.as_tensor(mottled_albedo()))
     for _ in range(steps):
         optimiser.zero_grad()
         light = Light(torch.tensor([0.1, -0.2, 0.0], dtype=torch.float64), torch.tensor(AMBIENT, dtype=torch.float64),
                       environment=environment)
-        rgb = render(vertices, mesh, K, info.height, info.width, outputs=("rgb",), appearance=appearance, light=light,
-                     antialiased=False)["rgb"]
-        loss = ((rgb - frames).abs() * masks).sum() / masks.sum()
+        rgb = render(scene["vertices"], scene["mesh"], scene["K"], scene["height"], scene["width"], outputs=("rgb",),
+                     appearance=scene["appearance"], light=light, antialiased=False)["rgb"]
+        loss = ((rgb - scene["frames"]).abs() * scene["masks"]).sum() / scene["masks"].sum()
         loss.backward()
         optimiser.step()
-    return environment.detach().numpy(), vertices, mesh
+    return environment.detach().numpy(), scene["vertices"], scene["mesh"]
 
 
 def test_a_known_room_light_is_recovered_and_none_where_there_is_none(clips):

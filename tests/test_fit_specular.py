@@ -3,20 +3,17 @@ exactly with them (pipeline/evaluate/exact_clips.py), `auto` switching the lobe 
 without one, its format, and checkpoints from before it."""
 import json
 
-import cv2
-import numpy as np
 import pytest
 import torch
 
-from pipeline.evaluate.exact_clips import AMBIENT, mottled_albedo, write_clip
+from pipeline.evaluate.exact_clips import AMBIENT, write_clip
 from pipeline.fit.checkpoint import CHECKPOINT_FILE, load_checkpoint
 from pipeline.fit.fitting import fit
-from pipeline.formats import sequence_folder as seq
 from pipeline.formats import specular_lobe
-from pipeline.handmodel.lbs import HandModel
 from pipeline.init import initialise_sequence
-from pipeline.render.renderer import Appearance, Light, RenderMesh, render
+from pipeline.render.renderer import Light, render
 from synth.motions import OPEN
+from synth_clips import known_scene
 
 SHINY = (0.4, 0.6)      # roughness, level: an oily sheen
 
@@ -32,29 +29,19 @@ def clips(tmp_path_factory):
 def recovered_lobe(folder, steps=150):
     """(roughness, level) fitted to a clip with everything else known (its true surface, albedo,
     point light and ambient): Adam on the squared difference inside the masks."""
-    info = seq.read_sequence_info(folder)
-    gt = seq.read_ground_truth(folder / seq.GT_FILE)
-    model = HandModel.load("hand", "right", dtype=torch.float64)
-    vertices = torch.as_tensor(gt.vertices, dtype=torch.float64)
-    frames = torch.stack([torch.as_tensor(cv2.imread(str(seq.frame_path(folder, info, i)))[..., ::-1].copy(),
-                                          dtype=torch.float64) / 255 for i in range(info.frame_count)])
-    masks = torch.stack([torch.as_tensor(cv2.imread(str(seq.mask_path(folder, info, i)), cv2.IMREAD_GRAYSCALE) > 127)
-                         for i in range(info.frame_count)])[..., None]
+    scene = known_scene(folder)
     roughness_logit = torch.zeros((), dtype=torch.float64, requires_grad=True)     # roughness 0.6
     level_logit = torch.tensor(-1.4, dtype=torch.float64, requires_grad=True)      # level 0.2
     optimiser = torch.optim.Adam([roughness_logit, level_logit], lr=0.05)
-    mesh = RenderMesh.from_model_data(model.data, dtype=torch.float64)
-    K = torch.as_tensor(np.asarray(info.K), dtype=torch.float64)
-    appearance = Appearance(torch.as_tensor(mottled_albedo()))
     low, high = specular_lobe.ROUGHNESS_RANGE
     for _ in range(steps):
         optimiser.zero_grad()
         lobe = low + (high - low) * torch.sigmoid(roughness_logit), torch.sigmoid(level_logit)
         light = Light(torch.tensor([0.1, -0.2, 0.0], dtype=torch.float64), torch.tensor(AMBIENT, dtype=torch.float64),
                       specular=lobe)
-        rgb = render(vertices, mesh, K, info.height, info.width, outputs=("rgb",), appearance=appearance, light=light,
-                     antialiased=False)["rgb"]
-        loss = ((rgb - frames).pow(2) * masks).sum() / masks.sum()
+        rgb = render(scene["vertices"], scene["mesh"], scene["K"], scene["height"], scene["width"], outputs=("rgb",),
+                     appearance=scene["appearance"], light=light, antialiased=False)["rgb"]
+        loss = ((rgb - scene["frames"]).pow(2) * scene["masks"]).sum() / scene["masks"].sum()
         loss.backward()
         optimiser.step()
     return tuple(value.item() for value in lobe)

@@ -41,14 +41,16 @@ SHADOW_AMBIENT_THRESHOLD = 0.75   # a fitted ambient ratio below this means a do
 # ambient (environment_light.colour_strength) is switched off. Exact clips over 3 seeds (docs/fidelity.md):
 # 0.035 fitted on a room of 0.038, 0.002 on a clip without one; the demo 0.003, the MediaPipe sample video 0.013
 ENVIRONMENT_THRESHOLD = 0.015
-# and on fewer fitted frames than this it stays off: a few views cannot tell a room's light from the albedo (the
-# add-on tests' 4-frame, 12-step fit of a clip under a white world found a "room" of colour strength 0.044)
+# and on fewer fitted frames than this it stays off, as the specular lobe does: a few views cannot tell a room's
+# light (or a sheen) from the albedo (the add-on tests' 4-frame, 12-step fit of a clip under a white world found
+# a "room" of colour strength 0.044)
 ENVIRONMENT_MIN_FRAMES = 8
 # an `auto` specular lobe whose highlight (specular_share.py: the 99th percentile of its share of each pixel's
 # colour on the fitted frames) is below this is switched off; the same few-views rule as the environment's.
 # Exact clips (tests/test_fit_specular.py's, 200 steps a stage): 0.134 fitted where the skin was drawn with an
 # oily lobe (roughness 0.4, level 0.6), 0.015 with a faint satin one (0.6, 0.3; fitted PSNR on and off within
-# 0.02 dB), 0.003 without one
+# 0.02 dB), 0.003 without one; a Cycles sun clip (level 0.24) 0.009, the MediaPipe sample video 0.004, the demo
+# (a white world, no light to reflect) under 0.001 (docs/fidelity.md)
 SPECULAR_THRESHOLD = 0.03
 KNOWN_APPEARANCE = SHAPE + APPEARANCE   # what a fit with known appearance takes from another fit, frozen
 # settings of what runs after the stages: a resumed fit may change them (they do not touch the checkpoint)
@@ -211,11 +213,9 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
                      f"{state.albedo_solve['solved_fraction']:.0%} of the texels "
                      f"(mean change {state.albedo_solve['mean_change']:.3f})"
                      + (" with the environment light" if "environment_strength" in state.albedo_solve else ""))
-        _decide_environment(problem, state, reporter, solved=True)
-        _decide_specular(problem, state, reporter, solved=True)
+        _decide_light(problem, state, reporter, solved=True)
         save()
-    _decide_environment(problem, state, reporter, solved=False)     # without an albedo solve: as the stages left it
-    _decide_specular(problem, state, reporter, solved=False)
+    _decide_light(problem, state, reporter, solved=False)     # without an albedo solve: as the stages left it
     if state.texture_fill is None and not problem.known_appearance:
         state.texture_fill = fill_avatar_albedo(problem.avatar, problem.clip)
         reporter.log(f"albedo: {state.texture_fill['unseen_fraction']:.0%} of the texels never seen, filled "
@@ -293,50 +293,62 @@ def _decide_shadows(problem, run, reporter):
     reporter.log(f"shadows auto: fitted ambient ratio {ambient:.2f} -> self-shadowing {'on' if decision.on else 'off'}")
 
 
-def _decide_environment(problem, state, reporter, solved):
-    """`auto` environment light, decided once after the stages (after the albedo solve, which
-    solves the light with the albedo, when `solved`): kept where its colour varies with direction
-    by at least ENVIRONMENT_THRESHOLD of the ambient (a white point light and an ambient ratio
-    cannot explain that; its colourless part they largely can) over at least
-    ENVIRONMENT_MIN_FRAMES fitted frames, else switched off, and the albedo solved again without it."""
+def _decide_light(problem, state, reporter, solved):
+    """The `auto` environment light and specular lobe, each decided once after the stages (after
+    the albedo solve, when `solved`, which solves the environment with the albedo and takes the
+    lobe's sheen off the frames); the albedo is solved again, once, without what they switch off."""
+    switched_off = _decide_environment(problem, state, reporter)
+    switched_off = _decide_specular(problem, state, reporter) or switched_off
+    if switched_off and solved:
+        state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on)
+
+
+def _decide_environment(problem, state, reporter) -> bool:
+    """`auto` environment light: kept where its colour varies with direction by at least
+    ENVIRONMENT_THRESHOLD of the ambient (a white point light and an ambient ratio cannot explain
+    that; its colourless part they largely can) over at least ENVIRONMENT_MIN_FRAMES fitted
+    frames, else switched off (True)."""
     if state.environment is not None or problem.settings.environment != "auto":
-        return
+        return False
     avatar = problem.avatar
     coefficients, ambient = avatar.environment.detach().cpu().numpy(), avatar.ambient.item()
     colour, strength = colour_strength(coefficients, ambient), relative_strength(coefficients, ambient)
-    enough_views = len(problem.frames) >= ENVIRONMENT_MIN_FRAMES
-    on = colour >= ENVIRONMENT_THRESHOLD and enough_views
+    on = colour >= ENVIRONMENT_THRESHOLD and _enough_views(problem)
     state.environment = {"on": on, "colour_strength": colour, "relative_strength": strength}
     reporter.log(f"environment light auto: its colour varies by {100 * colour:.1f}% of the ambient over the sphere "
-                 f"(all of it {100 * strength:.1f}%) -> {'on' if on else 'off'}"
-                 + ("" if enough_views else f" (fewer than {ENVIRONMENT_MIN_FRAMES} frames fitted: too few views)"))
+                 f"(all of it {100 * strength:.1f}%) -> {'on' if on else 'off'}{_views_note(problem)}")
     if not on:
         avatar.switch_environment(False)
-        if solved:
-            state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on)
+    return not on
 
 
-def _decide_specular(problem, state, reporter, solved):
-    """`auto` specular lobe, decided once after the stages (after the albedo solve, which takes
-    the lobe's sheen off the frames, when `solved`): kept where it carries at least
-    SPECULAR_THRESHOLD of the colour where it shines (specular_share.py) on at least
-    ENVIRONMENT_MIN_FRAMES fitted frames, else switched off, and the albedo solved again without it."""
+def _decide_specular(problem, state, reporter) -> bool:
+    """`auto` specular lobe: kept where it carries at least SPECULAR_THRESHOLD of the colour where
+    it shines (specular_share.py) on at least ENVIRONMENT_MIN_FRAMES fitted frames, else switched
+    off (True)."""
     if state.specular is not None or problem.settings.specular != "auto":
-        return
+        return False
     avatar = problem.avatar
     share = specular_share(problem, state.shadows.on)
     roughness, level = avatar.roughness.item(), avatar.specular_level.item()
-    enough_views = len(problem.frames) >= ENVIRONMENT_MIN_FRAMES
-    on = share["highlight"] >= SPECULAR_THRESHOLD and enough_views
+    on = share["highlight"] >= SPECULAR_THRESHOLD and _enough_views(problem)
     state.specular = {"on": on, "share": share["mean"], "highlight": share["highlight"], "roughness": roughness,
                       "level": level}
     reporter.log(f"specular lobe auto: roughness {roughness:.2f}, level {level:.2f}: {100 * share['highlight']:.1f}% "
                  f"of the colour where it shines, {100 * share['mean']:.1f}% of all -> {'on' if on else 'off'}"
-                 + ("" if enough_views else f" (fewer than {ENVIRONMENT_MIN_FRAMES} frames fitted: too few views)"))
+                 f"{_views_note(problem)}")
     if not on:
         avatar.switch_specular(False)
-        if solved:
-            state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on)
+    return not on
+
+
+def _enough_views(problem) -> bool:
+    """Whether the fit has frames enough to tell a light's or a lobe's effect from the albedo."""
+    return len(problem.frames) >= ENVIRONMENT_MIN_FRAMES
+
+
+def _views_note(problem) -> str:
+    return "" if _enough_views(problem) else f" (fewer than {ENVIRONMENT_MIN_FRAMES} frames fitted: too few views)"
 
 
 class _CheckpointSaver:
