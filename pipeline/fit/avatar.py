@@ -32,7 +32,7 @@ from ..render.shading import vertex_normals
 SKIN_RGB = (232 / 255, 190 / 255, 172 / 255)
 INITIAL_AMBIENT = 0.6
 INITIAL_ROUGHNESS = 0.5      # a satin skin
-INITIAL_SPECULAR_LEVEL = 0.2   # a faint sheen (F0 0.016): a clip without one takes it away in a few steps
+INITIAL_SPECULAR_LEVEL = 0.2   # a faint sheen (F0 0.016); clips without one bring it to about 0.09 (bench_specular.py)
 # the avatar's parameters by kind
 POSE = ("global_orient", "transl", "pose")
 PER_FRAME = POSE + ("exposure",)
