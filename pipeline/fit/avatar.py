@@ -79,9 +79,8 @@ class Avatar(torch.nn.Module):
         self.ambient_logit = parameter(np.log(INITIAL_AMBIENT / (1 - INITIAL_AMBIENT)))
         self.environment = parameter(np.zeros((environment_light.COEFFICIENTS, 3)))
         self.register_buffer("environment_on", torch.zeros((), dtype=torch.bool, device=device))
-        low, high = ROUGHNESS_RANGE
-        self.roughness_logit = parameter(_logit((INITIAL_ROUGHNESS - low) / (high - low)))
-        self.specular_logit = parameter(_logit(INITIAL_SPECULAR_LEVEL / LEVEL_MAX))
+        for name, value in initial_material().items():
+            setattr(self, name, parameter(value))
         self.register_buffer("specular_on", torch.zeros((), dtype=torch.bool, device=device))
         # the wrist joint rotates the hand against the forearm: free only with a forearm
         self.register_buffer("pose_mask", torch.ones(16, 3, dtype=dtype, device=device))
@@ -171,6 +170,14 @@ class Avatar(torch.nn.Module):
         """Personalised rest vertices (V, 3), detached: what the avatar folder's rig holds."""
         with torch.no_grad():
             return self.displaced_rest()
+
+
+def initial_material() -> dict:
+    """{MATERIAL parameter: value} where the specular lobe starts: INITIAL_ROUGHNESS and
+    INITIAL_SPECULAR_LEVEL through the sigmoids of Avatar.roughness and Avatar.specular_level."""
+    low, high = ROUGHNESS_RANGE
+    return {"roughness_logit": _logit((INITIAL_ROUGHNESS - low) / (high - low)),
+            "specular_logit": _logit(INITIAL_SPECULAR_LEVEL / LEVEL_MAX)}
 
 
 def _logit(p):

@@ -15,8 +15,7 @@ from pathlib import Path
 import torch
 
 from ..formats.environment_light import COEFFICIENTS as ENVIRONMENT_COEFFICIENTS
-from ..formats.specular_lobe import LEVEL_MAX, ROUGHNESS_RANGE
-from .avatar import INITIAL_ROUGHNESS, INITIAL_SPECULAR_LEVEL
+from .avatar import initial_material
 from .problem import FitError
 from .schedule import Schedule
 from .settings import FitSettings
@@ -65,7 +64,7 @@ class FitState:
     validation: list = dataclasses.field(default_factory=list)   # validation.Validator's checks, in order
     best: dict | None = None            # the best check's psnr, stage and step (its avatar: Checkpoint.best_avatar)
     environment: dict | None = None     # `auto` environment light, once decided: on, relative_strength
-    specular: dict | None = None        # `auto` specular lobe, once decided: on, share, roughness, level
+    specular: dict | None = None        # `auto` specular lobe, once decided: on, share, highlight, roughness, level
 
     @classmethod
     def fresh(cls, schedule: Schedule, shadows="auto"):
@@ -150,10 +149,8 @@ def load_checkpoint(path, device=None) -> Checkpoint:
 def _without_specular(avatar_state: dict):
     """An avatar state_dict from before the specular lobe, given one at its initial values, off."""
     like = avatar_state["ambient_logit"]
-    low, high = ROUGHNESS_RANGE
-    for name, value in (("roughness_logit", (INITIAL_ROUGHNESS - low) / (high - low)),
-                        ("specular_logit", INITIAL_SPECULAR_LEVEL / LEVEL_MAX)):
-        avatar_state[name] = torch.logit(torch.tensor(value, dtype=like.dtype, device=like.device))
+    for name, value in initial_material().items():
+        avatar_state[name] = torch.tensor(value, dtype=like.dtype, device=like.device)
     avatar_state["specular_on"] = torch.zeros((), dtype=torch.bool, device=like.device)
 
 
