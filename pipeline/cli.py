@@ -184,8 +184,8 @@ def build_parser():
                           "point light cannot explain that), on, or off (docs/fidelity.md)")
     fit.add_argument("--specular", choices=("auto", "on", "off"), default=None,
                      help="the skin's specular lobe (a fitted roughness and sheen, carried into Blender's Principled "
-                          "BSDF): auto (default) keeps it where it carries a visible share of the light, on, or off "
-                          "(docs/fidelity.md)")
+                          "BSDF): auto (default) keeps it where its highlights are at least 3%% of the colour they lie on, "
+                          "on, or off (docs/fidelity.md)")
     fit.add_argument("--resume", action="store_true", help="continue from the avatar folder's checkpoint")
     fit.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar", help=PROGRESS_HELP)
     fit.add_argument("--threads", type=int, metavar="N", help=THREADS_HELP)
