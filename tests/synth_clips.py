@@ -58,3 +58,20 @@ def known_scene(folder):
             "mesh": RenderMesh.from_model_data(model.data, dtype=torch.float64),
             "K": torch.as_tensor(np.asarray(info.K), dtype=torch.float64), "height": info.height, "width": info.width,
             "frames": frames, "masks": masks, "appearance": Appearance(torch.as_tensor(mottled_albedo()))}
+
+
+def quick_fits(clips, names, out_root, **options):
+    """{clip name: report, with "out" its avatar folder} of `fast` fits (capped at 200 steps a
+    stage, 96 px, a 64 px texture) of the exact clips `clips / name`, from a gt-noise start;
+    `options` are more fit() options (environment="auto", ...)."""
+    from pipeline.fit.fitting import fit
+    from pipeline.init import initialise_sequence
+
+    reports = {}
+    for name in names:
+        initialise_sequence(clips / name, "gt-noise", log=lambda *a: None)
+        out = out_root / name
+        reports[name] = fit(clips / name, out, max_steps=200, progress="none", resolution=96, texture_size=64,
+                            **options)
+        reports[name]["out"] = out
+    return reports

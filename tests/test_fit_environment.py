@@ -14,7 +14,7 @@ from pipeline.formats import environment_light as el
 from pipeline.init import initialise_sequence
 from pipeline.render.renderer import Light, render
 from synth.motions import OPEN
-from synth_clips import known_scene
+from synth_clips import known_scene, quick_fits
 
 
 @pytest.fixture(scope="module")
@@ -61,15 +61,8 @@ def test_a_known_room_light_is_recovered_and_none_where_there_is_none(clips):
 
 @pytest.fixture(scope="module")
 def auto_fits(clips, tmp_path_factory):
-    """{clip name: report} of `fast` fits (capped at 200 steps a stage) with the environment auto."""
-    reports = {}
-    for name in ("room", "plain"):
-        initialise_sequence(clips / name, "gt-noise", log=lambda *a: None)
-        out = tmp_path_factory.mktemp("fits") / name
-        reports[name] = fit(clips / name, out, max_steps=200, progress="none", resolution=96, texture_size=64,
-                            environment="auto")
-        reports[name]["out"] = out
-    return reports
+    """{clip name: report} of quick `fast` fits (synth_clips.quick_fits) with the environment auto."""
+    return quick_fits(clips, ("room", "plain"), tmp_path_factory.mktemp("fits"), environment="auto")
 
 
 def test_auto_keeps_a_coloured_room_light_and_switches_it_off_without_one(auto_fits):

@@ -13,7 +13,7 @@ from pipeline.formats import specular_lobe
 from pipeline.init import initialise_sequence
 from pipeline.render.renderer import Light, render
 from synth.motions import OPEN
-from synth_clips import known_scene
+from synth_clips import known_scene, quick_fits
 
 SHINY = (0.4, 0.6)      # roughness, level: an oily sheen
 
@@ -56,15 +56,8 @@ def test_a_known_lobe_is_recovered_and_none_where_there_is_none(clips):
 
 @pytest.fixture(scope="module")
 def auto_fits(clips, tmp_path_factory):
-    """{clip name: report} of `fast` fits (capped at 200 steps a stage) with the lobe auto."""
-    reports = {}
-    for name in ("shiny", "plain"):
-        initialise_sequence(clips / name, "gt-noise", log=lambda *a: None)
-        out = tmp_path_factory.mktemp("fits") / name
-        reports[name] = fit(clips / name, out, max_steps=200, progress="none", resolution=96, texture_size=64,
-                            specular="auto")
-        reports[name]["out"] = out
-    return reports
+    """{clip name: report} of quick `fast` fits (synth_clips.quick_fits) with the lobe auto."""
+    return quick_fits(clips, ("shiny", "plain"), tmp_path_factory.mktemp("fits"), specular="auto")
 
 
 def test_auto_keeps_a_sheen_and_switches_it_off_without_one(auto_fits):
