@@ -65,6 +65,24 @@ def test_a_terms_weight_can_differ_by_stage():
     assert "silhouette" in [term.name for term in terms_for(StageKind.GEOMETRY, settings)]
 
 
+def test_a_misspelt_term_or_stage_in_stage_factors_is_an_error():
+    """A stage factor that names no term or no stage would change nothing: it is refused."""
+    with pytest.raises(ValueError, match="no stage named 'joint'.*geometry\\+appearance"):
+        settings_for("fast", 30, stage_factors={"keypoint_anchor": {"joint": 0.0}})
+    with pytest.raises(ValueError, match="no energy term named 'anchor'"):
+        settings_for("fast", 30, stage_factors={"anchor": {"geometry": 0.0}})
+
+
+def test_the_held_out_refinement_anchors_the_keypoints_as_the_fits_later_stages_do():
+    """The held-out poses are refined with the anchor's weight of the geometry and joint stages
+    (1), not the alignment's (10), which held them on the initial keypoints (docs/fit.md)."""
+    settings = settings_for("fast", 30)
+    anchor = ENERGY_TERMS["keypoint_anchor"]
+    assert anchor.weight_in(settings, StageKind.ALIGN) == 10.0
+    for kind in (StageKind.GEOMETRY, StageKind.JOINT, StageKind.HELD_OUT):
+        assert anchor.weight_in(settings, kind) == pytest.approx(1.0)
+
+
 @pytest.fixture(scope="module")
 def tiny_clip(tmp_path_factory):
     return exact_clip(tmp_path_factory.mktemp("schedule") / "clip", frames=4)

@@ -71,13 +71,15 @@ class HeldOutResult:
 
 
 def evaluate_held_out(fit_folder, sequence, frames=None, steps=300, device=None, progress="none",
-                      picture=None, protocol="neighbours") -> HeldOutResult:
+                      picture=None, protocol="neighbours", stage_factors=None) -> HeldOutResult:
     """Fit pose, translation and light to frames the fit left out (default: the report's
     held-out frames), appearance and shape frozen; score them before and after. `protocol`
     (PROTOCOLS): "neighbours" starts from the fitted neighbours' poses and refines until the loss
     stops falling, at most `steps` steps; "keypoints" starts from init.npz and takes exactly
     `steps`. `progress`: "bar", "jsonl" or "none" (fit/progress.py); `picture`: a PNG path for
-    the held-out frames as the fit's grid shows its own (input, render, difference)."""
+    the held-out frames as the fit's grid shows its own (input, render, difference).
+    `stage_factors` ({term: {stage kind value: factor}}) are laid over the fit's own, to score one
+    fit under other weights (benchmarks/bench_held_out_weights.py)."""
     if protocol not in PROTOCOLS:
         raise EvaluationError(f"held-out protocol {protocol!r}: choose one of {', '.join(PROTOCOLS)}")
     device = default_device(device)
@@ -91,6 +93,8 @@ def evaluate_held_out(fit_folder, sequence, frames=None, steps=300, device=None,
     if frames.min() < 0 or frames.max() >= count:
         raise EvaluationError(f"held-out frames {frames.tolist()} outside the clip's {count} frames")
     settings = saved.settings
+    if stage_factors:
+        settings = dataclasses.replace(settings, stage_factors={**settings.stage_factors, **stage_factors})
     problem = build_problem(Path(sequence), settings, frames, device,
                             shared={name: saved.avatar[name] for name in FROZEN + LIGHT + SWITCHES}, frozen=FROZEN)
     if protocol == "neighbours":

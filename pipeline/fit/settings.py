@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from .energy_terms import default_weights
+from .energy_terms import ENERGY_TERMS, default_weights
 from .schedule import Schedule, StageKind
 
 # the default energy weights, one per registered term (energy_terms.py: Table C.1 and ours)
@@ -62,6 +62,17 @@ class FitSettings:
     checkpoint_seconds: float = 120.0
     budget_seconds: float | None = None   # the steps are cut to end within this (budget.py)
     seed: int = 0
+
+    def __post_init__(self):
+        # a misspelt term or stage would otherwise leave the weight as it was, without a word
+        stages = {kind.value for kind in StageKind}
+        for term, factors in self.stage_factors.items():
+            if term not in ENERGY_TERMS:
+                raise ValueError(f"stage_factors: no energy term named {term!r}; the terms: {', '.join(ENERGY_TERMS)}")
+            unknown = sorted(set(factors) - stages)
+            if unknown:
+                raise ValueError(f"stage_factors[{term!r}]: no stage named {unknown[0]!r}; "
+                                 f"the stages: {', '.join(sorted(stages))}")
 
     def schedule(self) -> Schedule:
         """The planned schedule: the alignment (ours: it widens the basin the three stages start
