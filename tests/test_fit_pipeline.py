@@ -9,6 +9,7 @@ import torch
 from synth_clips import ROOT, render_tiny_clip
 from pipeline.fit import estimate, fitting, stage_run
 from pipeline.fit.checkpoint import CHECKPOINT_FILE, load_checkpoint
+from pipeline.fit.settings import FitSettings
 from pipeline.formats import avatar_folder as av
 from pipeline.formats import hand_model_file as fmt
 
@@ -218,3 +219,57 @@ def test_alignment_in_chunks_equals_one_batch(tiny_clip, tmp_path, monkeypatch):
     assert whole["final_losses"]["align"]["loss"] == pytest.approx(chunked["final_losses"]["align"]["loss"], rel=1e-4)
     first, second = (av.read_poses(tmp_path / name) for name in ("whole", "chunked"))
     assert np.allclose(first.pose, second.pose, atol=1e-5)
+
+
+def test_learning_rate_factor_is_a_half_cosine_to_its_final_fraction():
+    assert stage_run.learning_rate_factor(0.0, 0.1) == pytest.approx(1.0)
+    assert stage_run.learning_rate_factor(0.5, 0.1) == pytest.approx(0.55)
+    assert stage_run.learning_rate_factor(1.0, 0.1) == pytest.approx(0.1)
+    assert stage_run.learning_rate_factor(1.7, 0.1) == pytest.approx(0.1)    # a budget cut a stage short
+    assert stage_run.learning_rate_factor(0.3, 1.0) == pytest.approx(1.0)    # constant rates
+
+
+def test_the_stages_rates_decay_and_a_rollback_halves_them(tiny_clip, tmp_path, monkeypatch):
+    """The alignment and geometry stages keep their rates; the joint and appearance stages, the
+    last to move their parameters, take them from the settings' down the half cosine to lr_decay
+    of them; a rolled-back step halves what follows."""
+    from pipeline.fit import energy
+
+    used, original_step = [], stage_run.StageRun._lazy_step
+
+    def recording(self, batch):
+        used.append((self.stage.kind.value, self.state.step, [group["lr"] for group in self.optimiser.param_groups]))
+        return original_step(self, batch)
+
+    original_energy, calls = energy.batch_energy, {"count": 0}
+
+    def nan_in_the_joint_stage(problem, stage, *args, **kwargs):
+        loss, terms = original_energy(problem, stage, *args, **kwargs)
+        calls["count"] += stage.kind.value == "geometry+appearance"
+        return (loss * float("nan"), terms) if calls["count"] == 3 else (loss, terms)
+
+    monkeypatch.setattr(stage_run.StageRun, "_lazy_step", recording)
+    monkeypatch.setattr(stage_run, "batch_energy", nan_in_the_joint_stage)
+    steps, final = 6, 0.1
+    report = fitting.fit(tiny_clip, tmp_path / "avatar", progress="none", max_steps=steps, texture_size=64,
+                         batch_size=2, resolution=96, lr_decay=final)
+    assert sum("rolled back" in event for event in report["events"]) == 1
+    by_stage = {}
+    for kind, step, rates in used:
+        by_stage.setdefault(kind, []).append((step, rates))
+    for kind in ("align", "geometry"):
+        assert all(rates == by_stage[kind][0][1] for _, rates in by_stage[kind]), kind
+    appearance = by_stage["appearance"]
+    for step, rates in appearance:
+        assert rates == pytest.approx([rate * stage_run.learning_rate_factor(step / steps, final)
+                                       for rate in appearance[0][1]])
+    joint = by_stage["geometry+appearance"]
+    joint_start = joint[0][1]
+    defaults = FitSettings()
+    assert sorted(set(joint_start)) == sorted({defaults.lr_geometry, defaults.lr_betas, defaults.lr_displacement,
+                                               defaults.lr_appearance})
+    for step, rates in joint:            # the third step's loss was not finite: no Adam step, halved after
+        scale = 0.5 if step >= 3 else 1.0
+        assert rates == pytest.approx([scale * rate * stage_run.learning_rate_factor(step / steps, final)
+                                       for rate in joint_start])
+    assert [step for step, _ in joint] == [0, 1, 3, 4, 5]

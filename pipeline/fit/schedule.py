@@ -38,6 +38,13 @@ class StageKind(enum.Enum):
         return self is StageKind.ALIGN
 
     @property
+    def settles(self) -> bool:
+        """The last stage of the fit to move its parameters (the poses and shape in the joint
+        stage, the appearance in the appearance stage): its learning rates fall towards its end
+        (FitSettings.lr_decay)."""
+        return self in (StageKind.JOINT, StageKind.APPEARANCE)
+
+    @property
     def full_batch(self) -> bool:
         """Every frame in each step (else batches drawn from a shuffled epoch)."""
         return self in (StageKind.ALIGN, StageKind.HELD_OUT)

@@ -23,6 +23,13 @@ ALIGN_CHUNK_FRAMES = 32   # frames of the unsubdivided mesh rendered at once in 
 DIVERGENCE_FACTOR = 1.5   # a full-batch loss this much above the best so far counts as divergence
 
 
+def learning_rate_factor(progress: float, final: float) -> float:
+    """The factor on a stage's learning rates at `progress` (steps taken / steps planned, 0..1):
+    a half cosine from 1 down to `final`."""
+    progress = min(max(progress, 0.0), 1.0)
+    return final + (1.0 - final) * 0.5 * (1.0 + math.cos(math.pi * progress))
+
+
 @dataclasses.dataclass
 class StepResult:
     loss: float
@@ -47,7 +54,7 @@ def parameter_groups(problem: FitProblem, stage: StageSpec):
     for names, lr in groups:
         parameters = [getattr(problem.avatar, name) for name in names if name not in problem.frozen]
         if parameters:
-            result.append({"params": parameters, "lr": lr})
+            result.append({"params": parameters, "lr": lr, "base_lr": lr})
     return result
 
 
@@ -86,6 +93,8 @@ class StageRun:
         self.optimiser = torch.optim.Adam(groups) if groups else None
         if self.optimiser is not None and optimiser_state is not None:
             self.optimiser.load_state_dict(optimiser_state)
+            for group in self.optimiser.param_groups:   # saved before the rates decayed: constant
+                group.setdefault("base_lr", group["lr"])
         self.last_good = self._snapshot()
         self.best_loss = math.inf
 
@@ -135,6 +144,7 @@ class StageRun:
         """One Adam step; a non-finite loss or parameter, or a full-batch loss that rose past
         DIVERGENCE_FACTOR times its best, is undone (back to the last snapshot, learning rates
         halved) and reported as the result's event."""
+        self._set_learning_rates()
         batch = self.next_batch()
         self.optimiser.zero_grad(set_to_none=True)
         loss, terms = self.energy(batch)
@@ -147,6 +157,7 @@ class StageRun:
         if not math.isfinite(loss) or not self._finite() or diverged:
             self._restore(self.last_good)
             for group in self.optimiser.param_groups:
+                group["base_lr"] *= 0.5
                 group["lr"] *= 0.5
             problem = f"loss rose to {loss:.4g} from {self.best_loss:.4g}" if diverged else "non-finite loss"
             event = f"{problem} at {self.stage.name} step {self.state.step - 1}: rolled back, learning rates halved"
@@ -156,6 +167,15 @@ class StageRun:
             self.last_good = self._snapshot()
         self.state.history.append({"stage": self.stage.name, "step": self.state.step, "loss": loss, **terms})
         return StepResult(loss, terms)
+
+    def _set_learning_rates(self):
+        """Each group's rate: its base rate (halved by each rollback) times the decay at this step
+        (settings.lr_decay) in a stage that settles its parameters (StageKind.settles)."""
+        decays = self.stage.kind.settles
+        factor = learning_rate_factor(self.state.step / max(1, self.stage.steps),
+                                      self.problem.settings.lr_decay) if decays else 1.0
+        for group in self.optimiser.param_groups:
+            group["lr"] = group["base_lr"] * factor
 
     def _lazy_step(self, batch):
         """Adam step that leaves the per-frame parameters of frames outside the batch untouched,
@@ -192,8 +212,8 @@ class StageRun:
         return copy.deepcopy(self.problem.avatar.state_dict()), optimiser
 
     def _restore(self, snapshot):
-        learning_rates = [group["lr"] for group in self.optimiser.param_groups]
+        learning_rates = [(group["lr"], group["base_lr"]) for group in self.optimiser.param_groups]
         self.problem.avatar.load_state_dict(snapshot[0])
         self.optimiser.load_state_dict(snapshot[1])
-        for group, lr in zip(self.optimiser.param_groups, learning_rates):
-            group["lr"] = lr
+        for group, (lr, base_lr) in zip(self.optimiser.param_groups, learning_rates):
+            group["lr"], group["base_lr"] = lr, base_lr
