@@ -37,7 +37,7 @@ class FitSettings:
     lr_appearance: float = 1e-2
     # the joint and appearance stages (the last to move their parameters) end at this fraction of their
     # learning rates, along a half cosine (stage_run.learning_rate_factor). 1: constant, the default: at 0.1
-    # the exact sweep clip's joint error ended at its curve's minimum (0.44 mm, against 0.60 at constant
+    # the exact sweep clip's joint error ended at its curve's minimum (0.41 mm, against 0.60 at constant
     # rates), but the demo clip's fit needs its steps: held-out PSNR 0.32-0.44 dB and joints 0.09-0.13 mm
     # worse on three seeds of three (docs/fit.md, "Learning rates that fall within a stage")
     lr_decay: float = 1.0
