@@ -227,12 +227,15 @@ def test_learning_rate_factor_is_a_half_cosine_to_its_final_fraction():
     assert stage_run.learning_rate_factor(1.0, 0.1) == pytest.approx(0.1)
     assert stage_run.learning_rate_factor(1.7, 0.1) == pytest.approx(0.1)    # a budget cut a stage short
     assert stage_run.learning_rate_factor(0.3, 1.0) == pytest.approx(1.0)    # constant rates
+    for wrong in (0.0, 1.5):
+        with pytest.raises(ValueError, match="final_rate_fraction must be in"):
+            FitSettings(final_rate_fraction=wrong)
 
 
 def test_the_stages_rates_decay_and_a_rollback_halves_them(tiny_clip, tmp_path, monkeypatch):
     """The alignment and geometry stages keep their rates; the joint and appearance stages, the
-    last to move their parameters, take them from the settings' down the half cosine to lr_decay
-    of them; a rolled-back step halves what follows."""
+    last to move their parameters, take them from the settings' down the half cosine to
+    final_rate_fraction of them; a rolled-back step halves what follows."""
     from pipeline.fit import energy
 
     used, original_step = [], stage_run.StageRun._lazy_step
@@ -252,7 +255,7 @@ def test_the_stages_rates_decay_and_a_rollback_halves_them(tiny_clip, tmp_path, 
     monkeypatch.setattr(stage_run, "batch_energy", nan_in_the_joint_stage)
     steps, final = 6, 0.1
     report = fitting.fit(tiny_clip, tmp_path / "avatar", progress="none", max_steps=steps, texture_size=64,
-                         batch_size=2, resolution=96, lr_decay=final)
+                         batch_size=2, resolution=96, final_rate_fraction=final)
     assert sum("rolled back" in event for event in report["events"]) == 1
     by_stage = {}
     for kind, step, rates in used:

@@ -41,7 +41,7 @@ class StageKind(enum.Enum):
     def settles(self) -> bool:
         """The last stage of the fit to move its parameters (the poses and shape in the joint
         stage, the appearance in the appearance stage): its learning rates fall towards its end
-        (FitSettings.lr_decay)."""
+        (FitSettings.final_rate_fraction)."""
         return self in (StageKind.JOINT, StageKind.APPEARANCE)
 
     @property

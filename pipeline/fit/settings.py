@@ -40,7 +40,7 @@ class FitSettings:
     # the exact sweep clip's joint error ended at its curve's minimum (0.41 mm, against 0.60 at constant
     # rates), but the demo clip's fit needs its steps: held-out PSNR 0.32-0.44 dB and joints 0.09-0.13 mm
     # worse on three seeds of three (docs/fit.md, "Learning rates that fall within a stage")
-    lr_decay: float = 1.0
+    final_rate_fraction: float = 1.0
     solve_albedo: bool = True       # the final albedo solved from the frames (albedo_solve.py)
     shadows: str = "auto"          # auto | on | off
     exposure: str = "auto"         # per-frame exposure gains: auto | on | off (problem.py decides auto)
@@ -70,6 +70,9 @@ class FitSettings:
     seed: int = 0
 
     def __post_init__(self):
+        if not 0.0 < self.final_rate_fraction <= 1.0:
+            raise ValueError(f"final_rate_fraction must be in (0, 1] (1: constant rates), "
+                             f"got {self.final_rate_fraction}")
         # a misspelt term or stage would otherwise leave the weight as it was, without a word
         stages = {kind.value for kind in StageKind}
         for term, factors in self.stage_factors.items():
@@ -97,7 +100,7 @@ class FitSettings:
         values.setdefault("stage_factors", {})
         values.setdefault("environment", "off")          # saved before the environment light
         values.setdefault("specular", "off")             # saved before the specular lobe
-        values.setdefault("lr_decay", 1.0)               # saved before the learning rates decayed
+        values.setdefault("final_rate_fraction", 1.0)    # saved before the learning rates fell
         if "steps" in values:
             values["steps"] = tuple(values["steps"])
         return cls(**values)

@@ -170,10 +170,10 @@ class StageRun:
 
     def _set_learning_rates(self):
         """Each group's rate: its base rate (halved by each rollback) times the decay at this step
-        (settings.lr_decay) in a stage that settles its parameters (StageKind.settles)."""
+        (settings.final_rate_fraction) in a stage that settles its parameters (StageKind.settles)."""
         decays = self.stage.kind.settles
-        factor = learning_rate_factor(self.state.step / max(1, self.stage.steps),
-                                      self.problem.settings.lr_decay) if decays else 1.0
+        final = self.problem.settings.final_rate_fraction
+        factor = learning_rate_factor(self.state.step / max(1, self.stage.steps), final) if decays else 1.0
         for group in self.optimiser.param_groups:
             group["lr"] = group["base_lr"] * factor
 
