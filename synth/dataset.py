@@ -24,6 +24,8 @@ if REPO_ROOT not in sys.path:
 from synth import SynthError  # noqa: E402
 from synth.options import LIGHTING, blender_argv, parse_clip_args  # noqa: E402
 
+STUDY_LIGHTING = ("ambient", "sun", "three")   # the set's presets (room came later: see --lighting)
+
 # name: (identity seed, size = scale shape parameter, skin tone 0..1, features)
 IDENTITIES = {
     "small-verylight": (101, -1.5, 0.05, "freckles"),
@@ -59,7 +61,7 @@ def build_parser():
     add("--identities", default=",".join(IDENTITIES), help=f"comma-separated subset of {','.join(IDENTITIES)}")
     add("--motions", default=",".join(MOTIONS), help="comma-separated subset of flip,fingers,random")
     add("--views", default=",".join(VIEWS), help=f"comma-separated subset of {','.join(VIEWS)}")
-    add("--lighting", default=",".join(LIGHTING), help="comma-separated subset of ambient,sun,three")
+    add("--lighting", default=",".join(STUDY_LIGHTING), help=f"comma-separated subset of {','.join(LIGHTING)}")
     add("--full", action="store_true", help="every viewpoint under every lighting preset")
     add("--list", action="store_true", help="print the clips and exit")
     add("--overwrite", action="store_true", help="render finished clips again")

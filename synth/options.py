@@ -13,7 +13,7 @@ from . import SynthError
 from .identity import FEATURES, NUM_BETAS
 from .motions import MOTIONS
 
-LIGHTING = ("ambient", "sun", "three")
+LIGHTING = ("ambient", "sun", "three", "room")
 BACKGROUNDS = ("plain", "procedural")
 MASK_ENGINES = ("workbench", "cycles")
 PREVIEW = {"width": 64, "height": 64, "frames": 4, "samples": 4, "texture_size": 256}

@@ -249,3 +249,33 @@ def test_blender_renders_with_the_saved_albedo_and_the_roughness_map(clip):
     values = np.empty(roughness.size[0] * roughness.size[1] * 4, dtype=np.float32)
     roughness.pixels.foreach_get(values)
     assert 0.3 < values.reshape(-1, 4)[:, 0].mean() < 0.7
+
+
+def test_the_room_light_is_cool_on_the_left_warm_on_the_right_and_bright_above(tmp_path):
+    """`--lighting room`'s environment (its window switched off): a grey diffuse sphere in front
+    of the camera is bluer on its left (-x) than on its right, and brighter above (-y) than below."""
+    from synth.clip import new_scene
+    from synth.lighting import setup_lighting
+
+    settings = parse_clip_args(["--out", str(tmp_path), "--width", "64", "--height", "64", "--samples", "32"])
+    K = camera.intrinsics_from_fov(64, 64, 30.0)
+    scene = new_scene(settings, K)
+    description = setup_lighting(scene, "room", "plain", target=[0.0, 0.0, 1.0])
+    assert description["ambient"]["colour"] == "room" and description["lights"][0]["type"] == "area"
+    bpy.data.objects["window"].data.energy = 0.0
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.2, location=(0.0, 0.0, 1.0), segments=48, ring_count=24)
+    sphere = bpy.context.active_object
+    material = bpy.data.materials.new("grey")
+    if not material.node_tree:      # before Blender 5.0 a new material has none until use_nodes is set
+        material.use_nodes = True
+    material.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (0.5, 0.5, 0.5, 1.0)
+    material.node_tree.nodes["Principled BSDF"].inputs["Roughness"].default_value = 1.0
+    sphere.data.materials.append(material)
+    render_still(scene, tmp_path / "sphere.png")
+    image = ((seq.read_rgb(tmp_path / "sphere.png") / 255.0 + 0.055) / 1.055) ** 2.4    # sRGB -> linear
+    left, right = image[24:40, 18:28].reshape(-1, 3).mean(0), image[24:40, 36:46].reshape(-1, 3).mean(0)
+    top, bottom = image[18:28, 24:40].reshape(-1, 3).mean(0), image[36:46, 24:40].reshape(-1, 3).mean(0)
+    # a diffuse surface averages the light over its hemisphere, so the sphere's sides differ far
+    # less than the room's ends (measured 1.34x and 1.24x); uniform white light gives 1 and 1
+    assert left[2] / left[0] > 1.2 * right[2] / right[0], (left, right)
+    assert top.sum() > 1.12 * bottom.sum(), (top, bottom)

@@ -25,6 +25,7 @@ from ..render.renderer import Appearance, Light, RenderMesh, render
 BACKGROUND = (0.25, 0.27, 0.3)
 TURN_DEGREES = 12.0      # rotation about the hand's long axis between frames
 AMBIENT = 0.6
+LIGHT_POSITION = (0.1, -0.2, 0.0)   # the point light, camera frame, metres
 
 
 def coloured_room():
@@ -71,7 +72,8 @@ def posed_box(model, pose, betas):
 
 
 def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=(0.0, 0.0), azimuth=0.0, betas=None,
-               turn_degrees=TURN_DEGREES, mode="hand", environment=None, specular=None):
+               turn_degrees=TURN_DEGREES, mode="hand", environment=None, specular=None, shadows=False,
+               light_position=LIGHT_POSITION):
     """Render `frames` frames of the hand in `pose` ((16, 3) or (F, 16, 3) axis-angle, radians,
     right hand) into the sequence folder `folder` with its exact ground truth (gt.npz,
     gt_albedo.png). The hand (its bounding box in frame 0's pose, centred) is 80% of the image
@@ -81,7 +83,8 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
     `mode` "arm" renders the hand with its forearm (framed as a whole); `betas` (one number: every
     shape coefficient) default to the average hand; `environment` (8, 3) adds an environment light
     (formats/environment_light.py) to the point light and ambient; `specular` (roughness, level)
-    gives the skin a specular lobe (formats/specular_lobe.py). Returns the SequenceInfo."""
+    gives the skin a specular lobe (formats/specular_lobe.py); `shadows` draws the point light's
+    self-shadows (at `light_position`, camera frame, metres). Returns the SequenceInfo."""
     model = HandModel.load(mode, "right", dtype=torch.float64)
     betas = np.broadcast_to(np.asarray(0.0 if betas is None else betas, dtype=np.float64), (model.num_betas,)).copy()
     pose = np.broadcast_to(np.asarray(pose, dtype=np.float64), (frames, 16, 3)).copy()
@@ -101,7 +104,8 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
         out = model(torch.as_tensor(betas), torch.as_tensor(pose), torch.as_tensor(global_orient),
                     torch.as_tensor(transl))
         albedo = mottled_albedo()
-        light = Light(torch.tensor([0.1, -0.2, 0.0], dtype=torch.float64), torch.tensor(AMBIENT, dtype=torch.float64),
+        light = Light(torch.tensor(light_position, dtype=torch.float64), torch.tensor(AMBIENT, dtype=torch.float64),
+                      shadows=shadows,
                       environment=None if environment is None else torch.as_tensor(environment, dtype=torch.float64),
                       specular=None if specular is None else tuple(torch.tensor(float(v), dtype=torch.float64)
                                                                    for v in specular))
@@ -121,7 +125,8 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
     seq.write_ground_truth(folder / seq.GT_FILE, seq.GroundTruth(
         mode=mode, side="right", betas=betas, global_orient=global_orient, transl=transl, pose=pose,
         keypoints3d=keypoints3d, keypoints2d=keypoints2d, vertices=out.vertices.numpy(),
-        light={"preset": "pipeline/evaluate/exact_clips.py", "position": [0.1, -0.2, 0.0], "ambient": AMBIENT,
+        light={"preset": "pipeline/evaluate/exact_clips.py", "position": list(light_position), "ambient": AMBIENT,
+               "shadows": shadows,
                "environment": environment_light.to_description(environment),
                specular_lobe.KEY: specular_lobe.to_description(*(specular or (None, None)))}))
     seq.write_png(folder / seq.GT_ALBEDO_FILE, _to_uint8(albedo.transpose(1, 2, 0)))

@@ -32,12 +32,16 @@ READABLE_VERSIONS = (2, 3, 4, 5, 6)   # a finished fit of version 2 reads as one
 
 @dataclasses.dataclass
 class ShadowDecision:
-    """Self-shadowing: as asked (`auto`, `on`, `off`), and for `auto` when and how it was decided."""
+    """Self-shadowing: as asked (`auto`, `on`, `off`), and for `auto` when and how it was decided
+    (the L1 in the masks of the probe's renders without and with it; checkpoints from before the
+    measured decision have none)."""
 
     requested: str = "auto"
     on: bool = False
     decided: bool = False
     ambient_at_decision: float | None = None
+    l1_without: float | None = None
+    l1_with: float | None = None
 
     @classmethod
     def requested_as(cls, shadows):

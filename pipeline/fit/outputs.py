@@ -23,13 +23,16 @@ VIDEO_FILE = "overlay.mp4"
 
 
 @torch.no_grad()
-def render_all(avatar, clip, shadows, exposure=False, batch_size=8):
-    """Rendered rgb and alpha (F, H, W, C) of every fitted frame; rgb is composited over the
-    clip's background plates (clip_data.background_plates), as a camera would have seen it;
-    with `exposure` the hand's colour takes each frame's exposure gain first."""
+def render_all(avatar, clip, shadows, exposure=False, batch_size=8, frames=None):
+    """Rendered rgb and alpha (F, H, W, C) of every fitted frame (or of `frames`, indices into
+    the fitted frames); rgb is composited over the clip's background plates
+    (clip_data.background_plates), as a camera would have seen it; with `exposure` the hand's
+    colour takes each frame's exposure gain first."""
     rgb, alpha = [], []
-    for start in range(0, len(clip.frames), batch_size):
-        batch = torch.arange(start, min(start + batch_size, len(clip.frames)), device=clip.images.device)
+    chosen = torch.arange(len(clip.frames), device=clip.images.device) if frames is None else \
+        torch.as_tensor(frames, dtype=torch.long, device=clip.images.device)
+    for start in range(0, len(chosen), batch_size):
+        batch = chosen[start:start + batch_size]
         vertices, _ = avatar.posed(batch)
         plates = clip.backgrounds[batch].to(vertices.dtype)
         images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=("rgb", "alpha"),
@@ -47,6 +50,19 @@ def score_renders(problem, shadows):
     fit sees them (exposure gains, silhouette weights)."""
     rgb, alpha = render_all(problem.avatar, problem.clip, shadows, problem.exposure_on)
     return rgb, alpha, image_scores(rgb, alpha, problem.clip, problem.silhouette_weight)
+
+
+def masked_l1(problem, shadows, frames):
+    """Mean L1 inside the masks (as image_scores counts it) of the problem's avatar rendered as
+    the fit sees it in `frames` (indices into the fitted frames), with self-shadowing or without."""
+    frames = torch.as_tensor(frames, dtype=torch.long, device=problem.clip.images.device)
+    rgb, _ = render_all(problem.avatar, problem.clip, shadows, problem.exposure_on, frames=frames)
+    masks = problem.clip.masks[frames]
+    if problem.silhouette_weight is not None:
+        masks = masks * problem.silhouette_weight[frames]
+    target = problem.clip.images[frames] * masks
+    return float(torch.stack([metrics.l1(rgb[i:i + 1] * masks[i:i + 1], target[i:i + 1], masks[i:i + 1])
+                              for i in range(len(frames))]).mean())
 
 
 def image_scores(rgb, alpha, clip, weight=None):
