@@ -10,7 +10,8 @@ PRESETS = [("fast", "Fast", "About 6 min for a 150-frame clip on one CPU core; t
                                     "not recommended"),
            ("full", "Full", "The paper's schedule at 448 px, about 50 min for 150 frames, to compare with HARP; "
                             "not better than Fast")]
-SHADOWS = [("auto", "Auto", "Decided from the fitted light: on under a dominant light"),
+SHADOWS = [("auto", "Auto", "Decided by measuring: fitted frames rendered with and without shadows, "
+                               "the better kept"),
            ("on", "On", "Self-shadowing always"), ("off", "Off", "No self-shadowing (soft, even light)")]
 ENVIRONMENTS = [("auto", "Auto", "A room's light from every side, kept where its colour changes with direction "
                                  "(a white point light cannot explain that)"),

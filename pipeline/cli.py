@@ -103,7 +103,8 @@ def _import_video(args):
 
     import_video(args.video, args.masks, args.out, size=args.size, K=parse_intrinsics(args.K) if args.K else None,
                  fov_deg=args.fov, side=args.side, fps=args.fps, margin=args.margin, max_frames=args.max_frames,
-                 overwrite=args.overwrite, warn=lambda message: print(message, file=sys.stderr), crop=args.crop)
+                 overwrite=args.overwrite, warn=lambda message: print(message, file=sys.stderr), crop=args.crop,
+                 window=args.window)
 
 
 def _init(args):
@@ -171,7 +172,8 @@ def build_parser():
     fit.add_argument("--out", required=True, help="avatar folder to write")
     fit.add_argument("--preset", choices=("fast", "balanced", "full"), default="fast", help=_preset_help())
     fit.add_argument("--shadows", choices=("auto", "on", "off"), default="auto",
-                     help="self-shadowing: auto (default) decides from the fitted light, on under a dominant light")
+                     help="self-shadowing: auto (default) renders fitted frames with and without it half-way "
+                          "through the fit and keeps whichever matches them better")
     fit.add_argument("--solve-albedo", action=argparse.BooleanOptionalAction, default=None,
                      help="solve the final albedo from the frames once geometry and light are final (default: on; "
                           "sharp detail such as tattoos, docs/fidelity.md)")
@@ -334,6 +336,10 @@ def build_parser():
                        help="frame: a window that follows the hand, so it is as large in every frame (each frame "
                             "gets its own principal point); clip: one window for the whole clip; auto (default): "
                             "follow the hand where that shows it at least 1.25x larger")
+    video.add_argument("--window", choices=("hand", "mask"), default="hand",
+                       help="what the crop holds: hand (default): the hand, found by MediaPipe's landmarks, so "
+                            "that a forearm reaching to the frame's edge does not make it small (the crop cuts the "
+                            "forearm); mask: the whole mask")
     video.add_argument("--max-frames", type=int, default=None, help="import only the first N frames")
     video.add_argument("--overwrite", action="store_true", help="replace the sequence in --out")
     video.set_defaults(run=_import_video)

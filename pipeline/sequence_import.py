@@ -8,6 +8,12 @@ brightest channel >= 128 is hand), so lossy mask videos work. Without masks the 
 its own (detection/hand_masks.py: MediaPipe's landmarks seed OpenCV's GrabCut), at a working
 scale of at most AUTO_MASK_SIZE pixels; masks a user gives always win.
 
+What the window holds (`window`): the hand ("hand", default: the mask's box cut to MediaPipe's
+landmarks, grown by HAND_BOX_GROWTH, so that a forearm reaching to the frame's edge does not
+make the hand small: on a 1080 x 1920 phone clip of a hand with its forearm the whole mask's
+window was 1659 px, the hand a third of it; the forearm then leaves the crop as it would leave
+the frame), or the whole mask ("mask"; also where MediaPipe finds no hand in the clip, or a
+frame's landmarks miss its mask).
 The crop (`crop`): a square window that follows the hand ("frame"), or one window for the whole
 clip ("clip"); "auto" follows the hand where that shows it at least PER_FRAME_GAIN times larger
 and every window fits inside the frame. A following window has one size for the clip (the
@@ -64,6 +70,9 @@ MIN_FRAMES = 2                  # the fit needs more than one view
 MASK_THRESHOLD = 128
 AUTO_MASK_SIZE = 640            # long side of the frames masks are made at (then scaled back)
 CROPS = ("auto", "frame", "clip")
+WINDOWS = ("hand", "mask")
+HAND_BOX_GROWTH = 0.1           # the landmarks' box grown by this share of its longer side on each side: the
+#                                 joints MediaPipe marks lie inside the palm's edges and the fingertips
 PER_FRAME_GAIN = 1.25           # crop=auto follows the hand where it is then this much larger
 FOLLOW_SECONDS = 0.1            # how much the following window's centre is smoothed over time
 METER_SIZE = 320                # long side at which each source frame's background colour is measured
@@ -334,23 +343,14 @@ class AutoMasks:
     label, limit, stored_frames = "masks (made from the footage)", None, None
 
     def __init__(self, frames, side, log=print):
-        import cv2
-
         from .detection.hand_masks import screened_masks
-        from .detection.mediapipe_hands import detect_keypoints, guess_hand_side
+        from .detection.mediapipe_hands import detect_keypoints
 
         self.path = frames.path
-        small, self.size = [], None
-        for _, image in frames:
-            self.size = (image.shape[1], image.shape[0])
-            scale = min(1.0, AUTO_MASK_SIZE / max(self.size))
-            small.append(image if scale == 1.0 else cv2.resize(image, None, fx=scale, fy=scale,
-                                                                interpolation=cv2.INTER_AREA))
-        if side == "auto":
-            sample = np.unique(np.linspace(0, len(small) - 1, min(len(small), 10)).round().astype(int))
-            side, _ = guess_hand_side(small[i] for i in sample)
+        small, self.scale, self.size = _small_frames(frames)
+        self.side = side = _side_of(small, side, log)
         log(f"making masks from the footage: MediaPipe landmarks in {len(small)} frames")
-        keypoints = detect_keypoints(small, side)
+        self.keypoints = keypoints = detect_keypoints(small, side)
 
         def progress(number):
             if (number + 1) % max(1, len(small) // 10) == 0 or number + 1 == len(small):
@@ -374,8 +374,72 @@ class AutoMasks:
             yield index, np.where(mask >= 0.5, 255, 0).astype(np.uint8)
 
 
+def hand_boxes(mask_boxes, landmarks, growth=HAND_BOX_GROWTH):
+    """(N, 4) boxes the crop holds: each mask box (N, 4) (x_min, y_min, x_max, y_max) cut to the
+    hand, the box of its frame's landmarks (N, 21, 2) grown by `growth` of its longer side on
+    each side; a mask box the grown landmarks' box misses stays whole (a wrong detection), as
+    does every box when `landmarks` is None."""
+    mask_boxes = np.asarray(mask_boxes, dtype=np.float64)
+    if landmarks is None:
+        return mask_boxes
+    landmarks = np.asarray(landmarks, dtype=np.float64)
+    low, high = landmarks.min(axis=1), landmarks.max(axis=1)
+    grow = growth * (high - low).max(axis=1, keepdims=True)
+    hand = np.concatenate([low - grow, high + grow], axis=1)
+    cut = np.concatenate([np.maximum(mask_boxes[:, :2], hand[:, :2]), np.minimum(mask_boxes[:, 2:], hand[:, 2:])],
+                         axis=1)
+    overlaps = (cut[:, 2:] > cut[:, :2]).all(axis=1) & np.isfinite(cut).all(axis=1)
+    return np.where(overlaps[:, None], np.floor(cut * 1.0), mask_boxes)
+
+
+def _landmarks(frames, mask_source, kept, side, log):
+    """(len(kept), 21, 2) MediaPipe's landmarks of the kept frames (indices) in source pixels
+    (gaps interpolated), and the side used; (None, side) where MediaPipe finds no hand in the clip."""
+    from .detection.mediapipe_hands import detect_keypoints
+    from .formats.keypoint_file import KeypointError
+
+    if isinstance(mask_source, AutoMasks):     # the masks were made from these very landmarks
+        points, scale, side = mask_source.keypoints.points, mask_source.scale, mask_source.side
+    else:
+        small, scale, _ = _small_frames(frames)
+        side = _side_of(small, side, log)
+        try:
+            points = detect_keypoints(small, side).points
+        except KeypointError:
+            log("crop: MediaPipe finds no hand in the frames, so the window holds the whole masks")
+            return None, side
+    return np.asarray(points)[kept] / scale, side
+
+
+def _small_frames(frames):
+    """(the frames at most AUTO_MASK_SIZE pixels on their long side, that scale, (width, height)
+    of the frames)."""
+    import cv2
+
+    small, scale, size = [], 1.0, None
+    for _, image in frames:
+        size = (image.shape[1], image.shape[0])
+        scale = min(1.0, AUTO_MASK_SIZE / max(size))
+        small.append(image if scale == 1.0 else cv2.resize(image, None, fx=scale, fy=scale,
+                                                            interpolation=cv2.INTER_AREA))
+    return small, scale, size
+
+
+def _side_of(small, side, log):
+    """`side`, or for "auto" MediaPipe's vote over up to 10 frames spread over the clip."""
+    if side != "auto":
+        return side
+    from .detection.mediapipe_hands import guess_hand_side
+
+    sample = np.unique(np.linspace(0, len(small) - 1, min(len(small), 10)).round().astype(int))
+    side, votes = guess_hand_side(small[i] for i in sample)
+    log(f"hand side: {side} (MediaPipe votes right {votes['right']}, left {votes['left']} in {len(sample)} frames; "
+        "--side overrides)")
+    return side
+
+
 def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto", fps=None, margin=0.15,
-                 max_frames=None, overwrite=False, log=print, warn=None, crop="auto"):
+                 max_frames=None, overwrite=False, log=print, warn=None, crop="auto", window="hand"):
     """Write the sequence folder `out` from `video` and `masks` (files or image folders; None:
     made from the frames); returns its SequenceInfo. See the module docstring."""
     warn = warn or log
@@ -391,6 +455,8 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
         raise ImportVideoError(f"--side must be right, left or auto, got {side!r}")
     if crop not in CROPS:
         raise ImportVideoError(f"--crop must be one of {', '.join(CROPS)}, got {crop!r}")
+    if window not in WINDOWS:
+        raise ImportVideoError(f"--window must be one of {', '.join(WINDOWS)}, got {window!r}")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ImportVideoError(f"output {out} exists and is not a folder")
@@ -417,6 +483,14 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
     K_source, camera_note = source_intrinsics(width, height, K, fov_deg)
     kept = sorted(boxes)
     stacked = np.array([boxes[index] for index in kept])
+    landmarks = None
+    if window == "hand":
+        landmarks, side = _landmarks(frames, mask_source, kept, side, log)
+    whole = stacked
+    stacked = hand_boxes(stacked, landmarks)
+    holds = "hand" if landmarks is not None else "mask"
+    beyond = float(np.max(np.maximum(whole[:, 2:] - whole[:, :2], 0).max(axis=1)
+                          - np.maximum(stacked[:, 2:] - stacked[:, :2], 0).max(axis=1)))
     union = (stacked[:, 0].min(), stacked[:, 1].min(), stacked[:, 2].max(), stacked[:, 3].max())
     clip_fps = fps or frames.fps or DEFAULT_FPS
     x0, y0, side_px = crop_window(union, width, height, margin)
@@ -469,7 +543,7 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
             "source_size": [width, height], "source_K": K_source.tolist(), "camera": camera_note,
             "crop": ({"follows_the_hand": True, "x0": corners[:, 0].tolist(), "y0": corners[:, 1].tolist(),
                       "side": side_px, "margin": margin, "clip_window_side": clip_side}
-                     if follows else {"x0": x0, "y0": y0, "side": side_px, "margin": margin}),
+                     if follows else {"x0": x0, "y0": y0, "side": side_px, "margin": margin}) | {"holds": holds},
             "source_frames": kept, "dropped_frames": {"empty_mask": empty, **named},
         }
         seq.write_sequence_info(partial, info)
@@ -485,6 +559,8 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
         f"; pixels outside {info.valid_region} lie past the video's edge and are marked invalid"
     where = (f"following the hand (one window for the clip would be {info.metadata['crop']['clip_window_side']} px)"
              if follows else f"at ({x0}, {y0})")
+    if holds == "hand" and beyond >= 0.25 * side_px:
+        where += f"; around the hand: the masks reach up to {beyond:.0f} px further (a forearm), cut by the crop"
     log(f"wrote {written} frames ({size}x{size}, crop {side_px} px {where} of {width}x{height}"
         f"{scale_note}; {camera_note}{valid_note}) to {out}; the masks over sampled frames: "
         f"{out / seq.MASK_PREVIEW_FILE}")

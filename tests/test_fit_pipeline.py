@@ -232,6 +232,20 @@ def test_learning_rate_factor_is_a_half_cosine_to_its_final_fraction():
             FitSettings(final_rate_fraction=wrong)
 
 
+def test_plateau_factor_halves_after_each_window_that_stopped_falling():
+    falling = [1.0] * 4 + [0.5] * 4 + [0.25] * 4           # windows of 4: each half the one before
+    assert stage_run.plateau_factor(falling, 0.1, window=4) == 1.0
+    level = [1.0] * 4 + [0.99] * 4 + [0.98] * 4 + [0.5] * 4 + [0.5] * 2    # -1%, -1%, -49%, then 2 steps
+    assert stage_run.plateau_factor(level, 0.02, window=4) == 0.25      # the last, unfinished window waits
+    assert stage_run.plateau_factor(level, 0.005, window=4) == 1.0      # -1% counts as falling here
+    assert stage_run.plateau_factor([1.0] * 40, 0.01, window=4, floor=0.125) == 0.125
+    assert stage_run.plateau_factor([1.0] * 40, 0.0, window=4) == 1.0   # off
+    assert stage_run.plateau_factor([1.0] * 3, 0.5, window=4) == 1.0    # no full window yet
+    for wrong in (-0.1, 1.0):
+        with pytest.raises(ValueError, match="plateau_tolerance must be in"):
+            FitSettings(plateau_tolerance=wrong)
+
+
 def test_the_stages_rates_decay_and_a_rollback_halves_them(tiny_clip, tmp_path, monkeypatch):
     """The alignment and geometry stages keep their rates; the joint and appearance stages, the
     last to move their parameters, take them from the settings' down the half cosine to

@@ -169,3 +169,41 @@ def test_crop_clip_keeps_one_window_and_a_hand_that_fits_nowhere_else_says_so(cr
     with pytest.raises(si.ImportVideoError, match="does not fit inside the frame"):
         si.import_video(still / "rgb", still / "mask", tmp_path / "frame", side="right", crop="frame",
                         log=lambda _: None)
+
+
+def test_hand_boxes_cut_the_mask_to_the_landmarks():
+    hand = np.array([[40, 10], [60, 10], [50, 50], [40, 50]], dtype=float)          # 4 points: a 20 x 40 box
+    landmarks = np.repeat(hand[None], 3, axis=0)
+    masks = np.array([[30, 0, 70, 200],        # a forearm reaching down past the hand: cut
+                      [42, 20, 58, 45],        # a mask inside the hand's box: kept whole
+                      [200, 0, 260, 90]])      # the landmarks miss this mask (a wrong detection): kept whole
+    boxes = si.hand_boxes(masks, landmarks, growth=0.1)                         # grown by 4 px on each side
+    np.testing.assert_array_equal(boxes, [[36, 6, 64, 54], [42, 20, 58, 45], [200, 0, 260, 90]])
+    np.testing.assert_array_equal(si.hand_boxes(masks, None), masks)
+
+
+def test_the_crop_holds_the_hand_not_the_whole_forearm(tmp_path):
+    """A hand with its forearm reaching to the frame's bottom edge: the window around the hand
+    (MediaPipe's landmarks) is far smaller than the whole mask's, the hand in it as whole as
+    in the source, and each frame's K still puts the true hand on its mask."""
+    info = write_clip(tmp_path / "source", OPEN, frames=4, size=256, mode="arm", hand_px=330, shift=(0.0, 0.2),
+                      turn_degrees=10)
+    lines = []
+    imported = {window: si.import_video(tmp_path / "source" / "rgb", tmp_path / "source" / "mask", tmp_path / window,
+                                        K=info.K, side="right", window=window, log=lines.append)
+                for window in ("hand", "mask")}
+    hand, whole = imported["hand"], imported["mask"]
+    assert hand.metadata["crop"]["holds"] == "hand" and whole.metadata["crop"]["holds"] == "mask"
+    assert hand.metadata["crop"]["side"] < 0.6 * whole.metadata["crop"]["side"]
+    assert any("around the hand" in line for line in lines)
+    gt = seq.read_ground_truth(tmp_path / "source" / seq.GT_FILE)
+    model = HandModel.load(gt.mode, "right", dtype=torch.float64)
+    K = torch.as_tensor(hand.frame_K())
+    alpha = render(torch.as_tensor(gt.vertices, dtype=torch.float64), RenderMesh.from_model_data(model.data, dtype=torch.float64), K,
+                   hand.height, hand.width, outputs=("alpha",))["alpha"][..., 0].numpy() >= 0.5
+    for index in range(hand.frame_count):
+        mask = seq.read_mask(seq.mask_path(tmp_path / "hand", hand, index)) > 0
+        assert (mask & alpha[index]).sum() / (mask | alpha[index]).sum() > 0.95
+        tips = np.stack([K[index].numpy() @ point / point[2] for point in gt.keypoints3d[index][[4, 8, 12, 16, 20]]])
+        assert (tips[:, :2] > 2).all() and (tips[:, :2] < hand.width - 2).all()   # every fingertip inside
+        assert mask[-1].any()                                                      # the forearm leaves the crop

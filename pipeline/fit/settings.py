@@ -41,6 +41,9 @@ class FitSettings:
     # rates), but the demo clip's fit needs its steps: held-out PSNR 0.32-0.44 dB and joints 0.09-0.13 mm
     # worse on three seeds of three (docs/fit.md, "Learning rates that fall within a stage")
     final_rate_fraction: float = 1.0
+    # in the same stages, the rates halve after each window of stage_run.PLATEAU_WINDOW steps whose mean loss
+    # fell by less than this share of the window's before (down to stage_run.PLATEAU_FLOOR); 0: never
+    plateau_tolerance: float = 0.0
     solve_albedo: bool = True       # the final albedo solved from the frames (albedo_solve.py)
     shadows: str = "auto"          # auto | on | off
     exposure: str = "auto"         # per-frame exposure gains: auto | on | off (problem.py decides auto)
@@ -73,6 +76,8 @@ class FitSettings:
         if not 0.0 < self.final_rate_fraction <= 1.0:
             raise ValueError(f"final_rate_fraction must be in (0, 1] (1: constant rates), "
                              f"got {self.final_rate_fraction}")
+        if not 0.0 <= self.plateau_tolerance < 1.0:
+            raise ValueError(f"plateau_tolerance must be in [0, 1) (0: off), got {self.plateau_tolerance}")
         # a misspelt term or stage would otherwise leave the weight as it was, without a word
         stages = {kind.value for kind in StageKind}
         for term, factors in self.stage_factors.items():
@@ -101,6 +106,7 @@ class FitSettings:
         values.setdefault("environment", "off")          # saved before the environment light
         values.setdefault("specular", "off")             # saved before the specular lobe
         values.setdefault("final_rate_fraction", 1.0)    # saved before the learning rates fell
+        values.setdefault("plateau_tolerance", 0.0)      # saved before the rates halved on a plateau
         if "steps" in values:
             values["steps"] = tuple(values["steps"])
         return cls(**values)

@@ -21,6 +21,8 @@ from .schedule import StageSpec
 ROLLBACK_EVERY = 20       # steps between the snapshots a rollback returns to
 ALIGN_CHUNK_FRAMES = 32   # frames of the unsubdivided mesh rendered at once in a full batch
 DIVERGENCE_FACTOR = 1.5   # a full-batch loss this much above the best so far counts as divergence
+PLATEAU_WINDOW = 25       # steps whose mean loss settings.plateau_tolerance compares with the window before
+PLATEAU_FLOOR = 0.125     # the plateaus halve a stage's rates down to this share at most
 
 
 def learning_rate_factor(progress: float, final: float) -> float:
@@ -28,6 +30,20 @@ def learning_rate_factor(progress: float, final: float) -> float:
     a half cosine from 1 down to `final`."""
     progress = min(max(progress, 0.0), 1.0)
     return final + (1.0 - final) * 0.5 * (1.0 + math.cos(math.pi * progress))
+
+
+def plateau_factor(losses, tolerance: float, window: int = PLATEAU_WINDOW, floor: float = PLATEAU_FLOOR) -> float:
+    """The factor on a stage's learning rates after its steps' `losses` so far: halved after
+    each full window of `window` steps whose mean loss fell by less than `tolerance` (a share)
+    from the window before, down to `floor`; 1 with `tolerance` 0."""
+    if tolerance <= 0:
+        return 1.0
+    means = [sum(losses[start:start + window]) / window for start in range(0, len(losses) - window + 1, window)]
+    factor = 1.0
+    for before, after in zip(means, means[1:]):
+        if after > before * (1.0 - tolerance):
+            factor = max(floor, 0.5 * factor)
+    return factor
 
 
 @dataclasses.dataclass
@@ -169,11 +185,16 @@ class StageRun:
         return StepResult(loss, terms)
 
     def _set_learning_rates(self):
-        """Each group's rate: its base rate (halved by each rollback) times the decay at this step
-        (settings.final_rate_fraction) in a stage that settles its parameters (StageKind.settles)."""
-        decays = self.stage.kind.settles
-        final = self.problem.settings.final_rate_fraction
-        factor = learning_rate_factor(self.state.step / max(1, self.stage.steps), final) if decays else 1.0
+        """Each group's rate: its base rate (halved by each rollback) times, in a stage that
+        settles its parameters (StageKind.settles), the decay at this step
+        (settings.final_rate_fraction) and the plateaus' factor (settings.plateau_tolerance, from
+        the stage's losses in the history, so a resumed stage continues alike)."""
+        settings, factor = self.problem.settings, 1.0
+        if self.stage.kind.settles:
+            factor = learning_rate_factor(self.state.step / max(1, self.stage.steps), settings.final_rate_fraction)
+            if settings.plateau_tolerance > 0:
+                losses = [entry["loss"] for entry in self.state.history if entry["stage"] == self.stage.name]
+                factor *= plateau_factor(losses, settings.plateau_tolerance)
         for group in self.optimiser.param_groups:
             group["lr"] = group["base_lr"] * factor
 
