@@ -374,11 +374,13 @@ class AutoMasks:
             yield index, np.where(mask >= 0.5, 255, 0).astype(np.uint8)
 
 
-def hand_boxes(mask_boxes, landmarks, growth=HAND_BOX_GROWTH):
+def hand_boxes(mask_boxes, landmarks, detected=None, growth=HAND_BOX_GROWTH):
     """(N, 4) boxes the crop holds: each mask box (N, 4) (x_min, y_min, x_max, y_max) cut to the
     hand, the box of its frame's landmarks (N, 21, 2) grown by `growth` of its longer side on
-    each side; a mask box the grown landmarks' box misses stays whole (a wrong detection), as
-    does every box when `landmarks` is None."""
+    each side, where MediaPipe saw the hand in that frame (`detected` (N,) bool, default all).
+    A mask box stays whole where the landmarks are only interpolated (a guess could cut the
+    hand), where the grown landmarks' box misses it (a wrong detection), and everywhere when
+    `landmarks` is None."""
     mask_boxes = np.asarray(mask_boxes, dtype=np.float64)
     if landmarks is None:
         return mask_boxes
@@ -386,29 +388,32 @@ def hand_boxes(mask_boxes, landmarks, growth=HAND_BOX_GROWTH):
     low, high = landmarks.min(axis=1), landmarks.max(axis=1)
     grow = growth * (high - low).max(axis=1, keepdims=True)
     hand = np.concatenate([low - grow, high + grow], axis=1)
-    cut = np.concatenate([np.maximum(mask_boxes[:, :2], hand[:, :2]), np.minimum(mask_boxes[:, 2:], hand[:, 2:])],
-                         axis=1)
-    overlaps = (cut[:, 2:] > cut[:, :2]).all(axis=1) & np.isfinite(cut).all(axis=1)
-    return np.where(overlaps[:, None], np.floor(cut * 1.0), mask_boxes)
+    cut = np.concatenate([np.floor(np.maximum(mask_boxes[:, :2], hand[:, :2])),
+                          np.ceil(np.minimum(mask_boxes[:, 2:], hand[:, 2:]))], axis=1)
+    use = (cut[:, 2:] > cut[:, :2]).all(axis=1) & np.isfinite(cut).all(axis=1)
+    if detected is not None:
+        use &= np.asarray(detected, dtype=bool)
+    return np.where(use[:, None], cut, mask_boxes)
 
 
 def _landmarks(frames, mask_source, kept, side, log):
-    """(len(kept), 21, 2) MediaPipe's landmarks of the kept frames (indices) in source pixels
-    (gaps interpolated), and the side used; (None, side) where MediaPipe finds no hand in the clip."""
+    """((len(kept), 21, 2) MediaPipe's landmarks of the kept frames (indices) in source pixels,
+    gaps interpolated; (len(kept),) whether each was seen; the side used), or (None, None, side)
+    where MediaPipe finds no hand in the clip."""
     from .detection.mediapipe_hands import detect_keypoints
     from .formats.keypoint_file import KeypointError
 
     if isinstance(mask_source, AutoMasks):     # the masks were made from these very landmarks
-        points, scale, side = mask_source.keypoints.points, mask_source.scale, mask_source.side
+        keypoints, scale, side = mask_source.keypoints, mask_source.scale, mask_source.side
     else:
         small, scale, _ = _small_frames(frames)
         side = _side_of(small, side, log)
         try:
-            points = detect_keypoints(small, side).points
+            keypoints = detect_keypoints(small, side)
         except KeypointError:
             log("crop: MediaPipe finds no hand in the frames, so the window holds the whole masks")
-            return None, side
-    return np.asarray(points)[kept] / scale, side
+            return None, None, side
+    return np.asarray(keypoints.points)[kept] / scale, np.asarray(keypoints.detected)[kept], side
 
 
 def _small_frames(frames):
@@ -483,11 +488,11 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
     K_source, camera_note = source_intrinsics(width, height, K, fov_deg)
     kept = sorted(boxes)
     stacked = np.array([boxes[index] for index in kept])
-    landmarks = None
+    landmarks = detected = None
     if window == "hand":
-        landmarks, side = _landmarks(frames, mask_source, kept, side, log)
+        landmarks, detected, side = _landmarks(frames, mask_source, kept, side, log)
     whole = stacked
-    stacked = hand_boxes(stacked, landmarks)
+    stacked = hand_boxes(stacked, landmarks, detected)
     holds = "hand" if landmarks is not None else "mask"
     beyond = float(np.max(np.maximum(whole[:, 2:] - whole[:, :2], 0).max(axis=1)
                           - np.maximum(stacked[:, 2:] - stacked[:, :2], 0).max(axis=1)))

@@ -180,6 +180,8 @@ def test_hand_boxes_cut_the_mask_to_the_landmarks():
     boxes = si.hand_boxes(masks, landmarks, growth=0.1)                         # grown by 4 px on each side
     np.testing.assert_array_equal(boxes, [[36, 6, 64, 54], [42, 20, 58, 45], [200, 0, 260, 90]])
     np.testing.assert_array_equal(si.hand_boxes(masks, None), masks)
+    guessed = si.hand_boxes(masks, landmarks, detected=[False, True, True], growth=0.1)  # interpolated: whole
+    np.testing.assert_array_equal(guessed[0], masks[0])
 
 
 def test_the_crop_holds_the_hand_not_the_whole_forearm(tmp_path):
