@@ -25,7 +25,6 @@ import json
 import shutil
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,19 +39,12 @@ from pipeline.fit.outputs import GRID_FILE  # noqa: E402
 from pipeline.formats import sequence_folder as seq  # noqa: E402
 from pipeline.init import initialise_sequence  # noqa: E402
 from synth.imported import import_with_ground_truth  # noqa: E402
+from timing import timed  # noqa: E402
 
 PHONE = ["--width", "1080", "--height", "1920", "--fov", "44", "--distance", "0.4", "--lighting", "room",
          "--mode", "arm", "--motion", "flip", "--samples", "16"]
 TARGETS = {"held_out_psnr": 30.0, "new_pose_overlap_psnr": 28.0, "surface_mm": 0.6, "albedo_sharpness": 0.6}
 VIDEO_ALONE_GAP_DB = 1.0
-
-
-def timed(figures, name, work):
-    start = time.perf_counter()
-    result = work()
-    figures[f"{name}_seconds"] = round(time.perf_counter() - start, 1)
-    print(f"{name}: {figures[f'{name}_seconds']:.1f} s", flush=True)
-    return result
 
 
 def acceptance(evaluation):

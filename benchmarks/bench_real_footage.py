@@ -21,7 +21,6 @@ import argparse
 import json
 import shutil
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -38,18 +37,11 @@ from pipeline.formats import sequence_folder as seq  # noqa: E402
 from pipeline.formats.fit_report import read_report  # noqa: E402
 from pipeline.init import initialise_sequence  # noqa: E402
 from pipeline.sequence_import import import_video  # noqa: E402
+from timing import timed  # noqa: E402
 
 
 def log(message):
     print(f"  {message}", flush=True)
-
-
-def timed(figures, name, work):
-    start = time.perf_counter()
-    result = work()
-    figures[f"{name}_seconds"] = round(time.perf_counter() - start, 1)
-    print(f"{name}: {figures[f'{name}_seconds']:.1f} s", flush=True)
-    return result
 
 
 def main(argv=None):

@@ -35,3 +35,12 @@ def alternating_medians(functions, rounds):
             if round_index:
                 record.append(time.perf_counter() - start)
     return [statistics.median(record) for record in times]
+
+
+def timed(figures, name, work):
+    """`work()`, its wall time recorded as figures[name + "_seconds"] and printed."""
+    start = time.perf_counter()
+    result = work()
+    figures[f"{name}_seconds"] = round(time.perf_counter() - start, 1)
+    print(f"{name}: {figures[f'{name}_seconds']:.1f} s", flush=True)
+    return result
