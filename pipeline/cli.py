@@ -335,7 +335,7 @@ def build_parser():
     video.add_argument("--crop", choices=("auto", "frame", "clip"), default="auto",
                        help="frame: a window that follows the hand, so it is as large in every frame (each frame "
                             "gets its own principal point); clip: one window for the whole clip; auto (default): "
-                            "follow the hand where that shows it at least 1.25x larger")
+                            "follow the hand where that shows it at least 1.1x larger")
     video.add_argument("--window", choices=("hand", "mask"), default="hand",
                        help="what the crop holds: hand (default): the hand, found by MediaPipe's landmarks, so "
                             "that a forearm reaching to the frame's edge does not make it small (the crop cuts the "
