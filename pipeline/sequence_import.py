@@ -71,6 +71,7 @@ MASK_THRESHOLD = 128
 AUTO_MASK_SIZE = 640            # long side of the frames masks are made at (then scaled back)
 CROPS = ("auto", "frame", "clip")
 WINDOWS = ("hand", "mask")
+SIDE_VOTES = 10                 # frames MediaPipe's handedness is asked about for --side auto
 HAND_BOX_GROWTH = 0.1           # the landmarks' box grown by this share of its longer side on each side: the
 #                                 joints MediaPipe marks lie inside the palm's edges and the fingertips
 PER_FRAME_GAIN = 1.1            # crop=auto follows the hand where it is then this much larger (at 1.25 the MediaPipe
@@ -432,12 +433,12 @@ def _small_frames(frames):
 
 
 def _side_of(small, side, log):
-    """`side`, or for "auto" MediaPipe's vote over up to 10 frames spread over the clip."""
+    """`side`, or for "auto" MediaPipe's vote over up to SIDE_VOTES frames spread over `small`."""
     if side != "auto":
         return side
     from .detection.mediapipe_hands import guess_hand_side
 
-    sample = np.unique(np.linspace(0, len(small) - 1, min(len(small), 10)).round().astype(int))
+    sample = np.unique(np.linspace(0, len(small) - 1, min(len(small), SIDE_VOTES)).round().astype(int))
     side, votes = guess_hand_side(small[i] for i in sample)
     log(f"hand side: {side} (MediaPipe votes right {votes['right']}, left {votes['left']} in {len(sample)} frames; "
         "--side overrides)")
@@ -534,12 +535,8 @@ def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto",
             raise ImportVideoError(f"the {frames.label} gave {written} frames on the second read, {len(kept)} on the "
                                    "first")
         if side == "auto":
-            from .detection.mediapipe_hands import guess_hand_side
-
-            sample = np.unique(np.linspace(0, written - 1, min(written, 10)).round().astype(int))
-            side, votes = guess_hand_side(seq.read_rgb(seq.frame_path(partial, info, i)) for i in sample)
-            log(f"hand side: {side} (MediaPipe votes right {votes['right']}, left {votes['left']} "
-                f"in {len(sample)} frames; --side overrides)")
+            sample = np.unique(np.linspace(0, written - 1, min(written, SIDE_VOTES)).round().astype(int))
+            side = _side_of([seq.read_rgb(seq.frame_path(partial, info, i)) for i in sample], side, log)
         info.hand_side = side
         if np.isfinite(colours).all():
             info.background_colour = np.array(colours)

@@ -60,9 +60,12 @@ def masked_l1(problem, shadows, frames):
     masks = problem.clip.masks[frames]
     if problem.silhouette_weight is not None:
         masks = masks * problem.silhouette_weight[frames]
-    target = problem.clip.images[frames] * masks
-    return float(torch.stack([metrics.l1(rgb[i:i + 1] * masks[i:i + 1], target[i:i + 1], masks[i:i + 1])
-                              for i in range(len(frames))]).mean())
+    return float(_frame_l1s(rgb * masks, problem.clip.images[frames] * masks, masks).mean())
+
+
+def _frame_l1s(composed, target, masks):
+    """(F,) each frame's L1 inside its mask."""
+    return torch.stack([metrics.l1(composed[i:i + 1], target[i:i + 1], masks[i:i + 1]) for i in range(len(composed))])
 
 
 def image_scores(rgb, alpha, clip, weight=None):
@@ -75,7 +78,7 @@ def image_scores(rgb, alpha, clip, weight=None):
     target = clip.images * masks
     composed = rgb * masks
     iou = metrics.silhouette_iou(alpha if weight is None else alpha * weight, masks)
-    l1 = torch.stack([metrics.l1(composed[i:i + 1], target[i:i + 1], masks[i:i + 1]) for i in range(len(rgb))])
+    l1 = _frame_l1s(composed, target, masks)
     psnr = torch.stack([metrics.psnr(composed[i:i + 1], target[i:i + 1], masks[i:i + 1]) for i in range(len(rgb))])
     result = {"silhouette_iou": iou.tolist(), "l1": l1.tolist(), "psnr": psnr.tolist(),
               "silhouette_iou_min": float(iou.min()), "psnr_mean": float(psnr.mean()),
