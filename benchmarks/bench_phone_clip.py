@@ -1,7 +1,7 @@
 """Benchmark: the phone-like synthetic clip of issue 30's acceptance, through the artist's path.
 
     .venv/bin/python benchmarks/bench_phone_clip.py OUT [--frames 30] [--identity 3] [--preset fast]
-        [--masks exact,video] [--threads 2] [--pictures DIR]
+        [--masks exact,video] [--window hand|mask] [--crop auto|frame|clip] [--threads 2] [--pictures DIR]
 
 1. synth/render.py: the hand as a phone sees it: 1080 x 1920 portrait frames, a 26 mm-equivalent
    lens (44 degrees across the short side), the hand (with its forearm) a third of the frame
@@ -9,13 +9,14 @@
    (a window's soft key and a room's coloured environment), the `flip` motion;
 2. synth/imported.py: `harp import-video` on those frames, with the clip's exact masks
    ("exact") and with masks made from the frames alone ("video"), the ground truth carried
-   through the crop;
+   through the crop (`--window`, `--crop`: the import's; other than the defaults, their own
+   folders);
 3. `harp init` (MediaPipe), `harp fit --hold-out-every 5` with the preset;
 4. `harp evaluate --novel-poses`: held-out frames (both protocols), the surface against the
    truth, new poses against Cycles renders of the true hand, the albedo's sharpness.
 Prints each step's time and the acceptance figures beside their targets (issue 30: held-out
 PSNR >= 30 dB, new-pose PSNR in the overlap >= 28 dB, surface <= 0.6 mm, albedo sharpness >= 0.6,
-the video alone within 1 dB of the exact masks' held-out PSNR); writes OUT/bench_phone_clip.json.
+the video alone within 1 dB of the exact masks' held-out PSNR); writes OUT/bench_phone_clip[_VARIANT].json.
 Finished steps are kept: rerun to resume.
 """
 from __future__ import annotations
@@ -72,6 +73,8 @@ def main(argv=None):
     parser.add_argument("--identity", type=int, default=3, help="synth/render.py --identity (default 3)")
     parser.add_argument("--preset", default="fast", choices=("fast", "balanced", "full"))
     parser.add_argument("--masks", default="exact,video", help="comma-separated: exact, video (default both)")
+    parser.add_argument("--window", choices=("hand", "mask"), default="hand", help="harp import-video --window")
+    parser.add_argument("--crop", choices=("auto", "frame", "clip"), default="auto", help="harp import-video --crop")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--pictures", type=Path, help="copy the fit and held-out grids here")
     args = parser.parse_args(argv)
@@ -81,16 +84,21 @@ def main(argv=None):
         parser.error(f"--masks takes exact and/or video, got {args.masks!r}")
     args.out.mkdir(parents=True, exist_ok=True)
     source = args.out / "source"
-    figures = {"frames": args.frames, "identity": args.identity, "preset": args.preset, "threads": args.threads}
+    figures = {"frames": args.frames, "identity": args.identity, "preset": args.preset, "threads": args.threads,
+               "window": args.window, "crop": args.crop}
+    variant = (f"_window_{args.window}" if args.window != "hand" else "") + (f"_crop_{args.crop}" if args.crop != "auto"
+                                                                             else "")
     if not (source / seq.SEQUENCE_FILE).is_file():
         timed(figures, "render", lambda: subprocess.run(
             [sys.executable, str(ROOT / "synth" / "render.py"), "--out", str(source), "--overwrite", *PHONE,
              "--frames", str(args.frames), "--identity", str(args.identity)], check=True))
     for kind in kinds:
-        sequence, avatar = args.out / f"sequence_{kind}", args.out / f"avatar_{kind}_{args.preset}"
+        sequence = args.out / f"sequence_{kind}{variant}"
+        avatar = args.out / f"avatar_{kind}{variant}_{args.preset}"
         if not (sequence / seq.GT_FILE).is_file():
             timed(figures, f"{kind}_import", lambda: import_with_ground_truth(
-                source, sequence, video_alone=kind == "video", log=lambda line: print(f"  {line}", flush=True)))
+                source, sequence, video_alone=kind == "video", log=lambda line: print(f"  {line}", flush=True),
+                window=args.window, crop=args.crop))
         if not (sequence / "init.npz").is_file():
             timed(figures, f"{kind}_init", lambda: initialise_sequence(sequence, "mediapipe", log=lambda *a: None))
         if not (avatar / "report.json").is_file():
@@ -104,8 +112,8 @@ def main(argv=None):
             print(f"  {line}", flush=True)
         if args.pictures:
             args.pictures.mkdir(parents=True, exist_ok=True)
-            for picture, name in ((avatar / GRID_FILE, f"phone_{kind}_fit_grid.png"),
-                                  (avatar / HELD_OUT_PICTURE, f"phone_{kind}_held_out_grid.png")):
+            for picture, name in ((avatar / GRID_FILE, f"phone_{kind}{variant}_fit_grid.png"),
+                                  (avatar / HELD_OUT_PICTURE, f"phone_{kind}{variant}_held_out_grid.png")):
                 shutil.copyfile(picture, args.pictures / name)
     print("acceptance (issue 30):")
     for kind in kinds:
@@ -118,7 +126,7 @@ def main(argv=None):
         figures["video_alone_gap_db"] = gap
         print(f"  the video alone {gap:.2f} dB below the exact masks' held-out PSNR (target <= {VIDEO_ALONE_GAP_DB}): "
               f"{'met' if gap <= VIDEO_ALONE_GAP_DB else 'not met'}")
-    (args.out / "bench_phone_clip.json").write_text(json.dumps(figures, indent=2))
+    (args.out / f"bench_phone_clip{variant}.json").write_text(json.dumps(figures, indent=2))
 
 
 if __name__ == "__main__":
