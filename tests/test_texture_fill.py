@@ -58,3 +58,54 @@ def test_fill_continues_a_smooth_colour_across_seams(hand):
     assert after < 0.5 * before and after < 2 * truth + 0.01
     unseen = graph.inside & ~seen
     assert np.abs(filled[unseen] - colour[unseen]).mean() < np.abs(start[unseen] - colour[unseen]).mean()
+
+
+def test_texels_shown_only_at_the_silhouette_are_filled_not_left_at_the_start(tmp_path):
+    """An exact clip, the avatar at its truth and its albedo at the starting colour except on the
+    texels the frames decide (set to the true albedo, as a perfect fit leaves them). Texels the
+    frames show only at the silhouette, outside the pixels the fit compares, are filled like
+    unseen ones: afterwards no texel inside the charts holds the starting colour, which a new
+    pose would show as pale streaks along the fingers' sides."""
+    import torch
+
+    from pipeline.evaluate.exact_clips import write_clip
+    from pipeline.fit import fitting
+    from pipeline.fit.albedo_solve import decided_texels
+    from pipeline.fit.avatar import SKIN_RGB
+    from pipeline.formats import sequence_folder as seq
+    from pipeline.formats.initial_estimate import write_initial_estimate
+    from pipeline.init.initial_from_ground_truth import ground_truth_with_noise
+    from pipeline.render.texel_visibility import visible_texels
+    from synth.motions import RELAXED
+
+    folder = tmp_path / "clip"
+    write_clip(folder, RELAXED, frames=3, size=96, turn_degrees=20)
+    gt = seq.read_ground_truth(folder / seq.GT_FILE)
+    write_initial_estimate(folder, ground_truth_with_noise(gt, joint_degrees=0.0, translation_m=0.0, seed=0))
+    problem = fitting._set_up(folder, fitting.FitJob("fast", device="cpu"), {"exposure": "off"}).problem
+    avatar, clip = problem.avatar, problem.clip
+    size = avatar.albedo.shape[-1]
+    truth = torch.as_tensor(seq.read_rgb(folder / seq.GT_ALBEDO_FILE) / 255.0, dtype=torch.float32).permute(2, 0, 1)
+    truth = torch.nn.functional.interpolate(truth[None], size=(size, size), mode="area")[0]
+    start = torch.tensor(SKIN_RGB, dtype=torch.float32)[:, None, None]
+
+    decided = decided_texels(problem)
+    with torch.no_grad():
+        vertices = avatar.posed(problem.all_frames())[0]
+    shown = torch.as_tensor(visible_texels(vertices, avatar.mesh, clip.K, clip.height, clip.width, size))
+    data = avatar.model.data
+    inside = torch.as_tensor(tf.texel_graph(avatar.rest_mesh().numpy(), data.faces, data.uvs, data.faces_uv, size).inside)
+    rim = shown & ~decided & inside
+    assert decided.any() and not (decided & ~shown).sum() > 0.02 * decided.sum()
+    assert rim.sum() > 0.1 * decided.sum(), (int(rim.sum()), int(decided.sum()))   # the silhouette's texels
+
+    with torch.no_grad():
+        avatar.albedo.copy_(torch.where(decided, truth, start.expand_as(truth)))
+    figures = tf.fill_avatar_albedo(avatar, decided)
+    albedo = avatar.albedo.detach()
+    at_start = ((albedo - start).abs().amax(0) < 1e-4) & inside
+    assert not at_start.any(), int(at_start.sum())
+    torch.testing.assert_close(albedo[:, decided & inside], truth[:, decided & inside], rtol=0, atol=1e-6)
+    # and the filled rim is nearer the truth than the starting colour was
+    assert (albedo - truth).abs().mean(0)[rim].mean() < 0.7 * (start - truth).abs().mean(0)[rim].mean()
+    assert figures["unseen_fraction"] > 1 - float(decided.sum() / inside.sum()) - 1e-6

@@ -184,9 +184,7 @@ def _observations(problem, shadows, batch_size, size):
         if environment is not None:
             basis = environment_basis_values(images["shading_normal"])
             shading = base + gain * (basis @ environment)
-        usable = problem.photometric_inside[batch][..., 0] & (images["alpha"][..., 0] > 0.5)   # as the photometric term
-        if clip.valid is not None:
-            usable = usable & (clip.valid[..., 0] > 0.5)
+        usable = problem.compared_pixels(batch) & (images["alpha"][..., 0] > 0.5)   # as the photometric term
         usable = usable & (shading.min(-1).values > MIN_SHADING)
         colour = clip.images[batch]
         if specular is not None:
@@ -200,6 +198,26 @@ def _observations(problem, shadows, batch_size, size):
     rows, columns, weights = bilinear_texels(uv, size)
     return _Observations((rows * size + columns).to(torch.int32), weights, shading, colour,   # int32: memory
                          *environment_parts)
+
+
+@torch.no_grad()
+def decided_texels(problem, batch_size=SOLVE_BATCH):
+    """(T, T) bool: the texels of the avatar's albedo that its frames decide, those the pixels the
+    fit compares (FitProblem.compared_pixels) give at least MIN_COVERAGE of bilinear weight: the
+    texels the solve solves. Any other texel holds what the appearance stage left (its starting
+    colour where no compared pixel reached it: a finger's side, seen edge-on at the silhouette),
+    and texture_fill.py fills it."""
+    avatar, clip = problem.avatar, problem.clip
+    size = avatar.albedo.shape[-1]
+    coverage = torch.zeros(size * size, dtype=avatar.albedo.dtype, device=avatar.albedo.device)
+    for batch in torch.arange(len(problem.frames), device=avatar.albedo.device).split(batch_size):
+        vertices, _ = avatar.posed(batch)
+        images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=("uv", "alpha"),
+                        antialiased=False)
+        usable = problem.compared_pixels(batch) & (images["alpha"][..., 0] > 0.5)
+        rows, columns, weights = bilinear_texels(images["uv"][usable], size)
+        coverage.index_add_(0, (rows * size + columns).flatten(), weights.flatten().to(coverage.dtype))
+    return coverage.view(size, size) >= MIN_COVERAGE
 
 
 def _consistency_weights(seen, albedo, size):

@@ -20,7 +20,7 @@ import torch
 from ..formats.environment_light import colour_strength, relative_strength
 from ..formats.initial_estimate import read_initial_estimate
 from ..formats.sequence_folder import validate_sequence_folder
-from .albedo_solve import solve_avatar_albedo
+from .albedo_solve import decided_texels, solve_avatar_albedo
 from .avatar import APPEARANCE, SHAPE, SWITCHES
 from .checkpoint import CHECKPOINT_FILE, CHECKPOINT_VERSION, Checkpoint, FitState, load_checkpoint, save_checkpoint
 from .budget import BudgetKeeper
@@ -222,7 +222,7 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
         save()
     _decide_light(problem, state, reporter, solved=False)     # without an albedo solve: as the stages left it
     if state.texture_fill is None and not problem.known_appearance:
-        state.texture_fill = fill_avatar_albedo(problem.avatar, problem.clip)
+        state.texture_fill = fill_avatar_albedo(problem.avatar, decided_texels(problem))
         reporter.log(f"albedo: {state.texture_fill['unseen_fraction']:.0%} of the texels never seen, filled "
                      f"through the surface (seam contrast {state.texture_fill['seam_contrast_before']:.3f} -> "
                      f"{state.texture_fill['seam_contrast_after']:.3f})")

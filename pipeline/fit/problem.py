@@ -93,6 +93,13 @@ class FitProblem:
         return torch.cat([eroded_mask(masks[start:start + 16], PHOTOMETRIC_EROSION) > 0.5
                           for start in range(0, len(masks), 16)])
 
+    def compared_pixels(self, frames=None) -> torch.Tensor:
+        """(F, H, W) bool: the pixels whose colour the fit compares in each frame (or in `frames`):
+        inside the photometric term's eroded mask and recorded by the camera. The albedo solve
+        reads these, and a texel no such pixel shows counts as unseen (texture_fill.py)."""
+        inside = self.photometric_inside[..., 0] if frames is None else self.photometric_inside[frames][..., 0]
+        return inside if self.clip.valid is None else inside & (self.clip.valid[..., 0] > 0.5)
+
 
 def default_device(device=None):
     return device or ("cuda" if torch.cuda.is_available() else "cpu")

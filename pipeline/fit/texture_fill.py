@@ -109,19 +109,21 @@ def extend_outside(texture, inside):
     return texture
 
 
-def fill_avatar_albedo(avatar, clip) -> dict:
-    """Fill the texels of the avatar's albedo that none of the clip's fitted frames shows, and
-    the normal map's outside the charts (in place, under no_grad); returns the share filled and the seam contrast before and after."""
-    import torch
+def fill_avatar_albedo(avatar, decided) -> dict:
+    """Fill the texels of the avatar's albedo that its frames do not decide (`decided` (T, T) bool:
+    albedo_solve.decided_texels), and the normal map's outside the charts (in place, under
+    no_grad); returns the share filled and the seam contrast before and after.
 
-    from ..render.texel_visibility import visible_texels
+    Undecided is more than unseen: a texel the frames show only at the silhouette, outside the
+    pixels the fit compares (a finger's side seen edge-on), was never fitted and still holds the
+    albedo's starting colour. Kept as seen, those were pale streaks along the fingers' sides in
+    new poses (docs/fidelity.md)."""
+    import torch
 
     size = avatar.albedo.shape[-1]
     data = avatar.model.data
     with torch.no_grad():
-        frames = torch.arange(avatar.pose.shape[0], device=avatar.pose.device)
-        vertices = torch.cat([avatar.posed(chunk)[0] for chunk in frames.split(8)])
-        seen = visible_texels(vertices, avatar.mesh, clip.K, clip.height, clip.width, size)
+        seen = decided.cpu().numpy()
         graph = texel_graph(avatar.rest_mesh().cpu().numpy(), data.faces, data.uvs, data.faces_uv, size)
         albedo = avatar.albedo.clamp(0, 1).permute(1, 2, 0).cpu().double().numpy()
         filled = fill_unseen(albedo, seen, graph)
