@@ -183,9 +183,14 @@ def _forearm_direction(batch):
     return losses.direction_loss(pixels[:, 1] - pixels[:, 0], targets[batch.frames], found[batch.frames])
 
 
+def _initial_betas(problem):
+    """(S,) the initial estimate's shape (a resumed fit's avatar holds its fitted one)."""
+    return torch.as_tensor(problem.initial.betas, dtype=problem.avatar.betas.dtype, device=problem.device)
+
+
 # ours, off by default (weight 0) until measured: the shape held near the initial estimate's (from the
 # keypoints' bone lengths) against the drift of long fits (docs/fidelity.md)
-@_term("shape_prior", 0.0, _GEOMETRY, prepare=lambda problem: problem.avatar.betas.detach().clone())
+@_term("shape_prior", 0.0, _GEOMETRY, prepare=_initial_betas)
 def _shape_prior(batch):
     return losses.shape_prior_loss(batch.problem.avatar.betas, batch.problem.term_data["shape_prior"])
 
