@@ -113,8 +113,8 @@ def test_calibration_times_each_kind_and_leaves_the_avatar_bit_for_bit(problem):
     costs = calibrate(problem, problem.settings.schedule(), kinds)
     assert costs.calibrated and costs.calibration_seconds > 0
     assert all(costs.seconds[kind] > 0 for kind in kinds)
-    # shading costs: a joint step renders colour on top of the geometry step's silhouette
-    assert costs.seconds[JOINT] > costs.seconds[GEOMETRY]
+    # (no order between the kinds' times is asserted: at this clip's 96 px a joint step and a
+    # geometry step cost within 1% of each other, and a loaded machine swapped them)
     assert costs.after_stages > 0
     for name, value in problem.avatar.state_dict().items():
         assert torch.equal(value, before[name]), name
