@@ -23,6 +23,9 @@ estimator gives 2D keypoints (MediaPipe or a file) and, from MediaPipe, metric 3
 Poses are HandModel's (local axis-angles; global_orient about the wrist; transl the wrist's
 position in the camera frame, metres). The wrist joint (pose[:, 0]) stays 0: keypoints do not
 see the forearm, so in arm mode the forearm starts in line with the hand.
+
+The model's keypoints stand for the landmarks; with `landmark_offsets`, MediaPipe's landmarks
+are compared with the keypoints moved to where MediaPipe puts them (landmark_offsets.py).
 """
 from __future__ import annotations
 
@@ -37,6 +40,7 @@ from ..handmodel.joint_limits import joint_limit_penalty
 from ..handmodel.lbs import HandModel
 from ..handmodel.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from ..render.rasterize import project
+from .landmark_offsets import on_mediapipe_landmarks
 
 PALM = [0, 1, 5, 9, 13, 17]        # keypoints that move little with the fingers
 UNIT_M = 0.1                       # 3D distances in units of 10 cm (as HARP's anchor term)
@@ -64,6 +68,10 @@ class InitialFitSettings:
     restart_factor: float = 2.0     # restart frames with residual > factor * median ...
     restart_min_fraction: float = 0.05  # ... and > this fraction of the hand's size in pixels
     seed: int = 0
+    # MediaPipe's landmarks compared where they sit on the model (landmark_offsets.py), not taken
+    # for its keypoints: off by default, measured (docs/initialisation.md): the phone-like clip's
+    # avatar gains, the demo's loses
+    landmark_offsets: bool = False
 
 
 def model_keypoints(model: HandModel, betas, pose):
@@ -258,6 +266,9 @@ def fit_initial_estimate(keypoints, K, mode="hand", side="right", settings=None,
     dtype = torch.float64
     start = time.perf_counter()
     model = model or HandModel.load(mode, side, dtype=dtype)
+    hand = model      # the model's own keypoints: what init.npz holds and the fit anchors to
+    if keypoints.source == "mediapipe" and settings.landmark_offsets:
+        model = on_mediapipe_landmarks(model)    # compared with MediaPipe's landmarks where it puts them
     pixels = torch.as_tensor(keypoints.points, dtype=dtype)
     frames = pixels.shape[0]
     K = torch.as_tensor(np.asarray(K), dtype=dtype)
@@ -309,15 +320,16 @@ def fit_initial_estimate(keypoints, K, mode="hand", side="right", settings=None,
     residual = fit.residual_px()
     global_orient = matrix_to_axis_angle(rotations)
     with torch.no_grad():
-        posed = model(betas, poses, global_orient, transls).keypoints[:, :21]
+        posed = hand(betas, poses, global_orient, transls).keypoints[:, :21]
     seconds = time.perf_counter() - start
     log(f"initial fit of {frames} frames: {seconds:.1f} s, residual median {float(residual.median()):.1f} px")
     return InitialEstimate(
         source=keypoints.source, mode=model.mode, side=model.side, betas=betas.numpy(), pose=poses.numpy(),
         global_orient=global_orient.numpy(), transl=transls.numpy(), keypoints3d=posed.numpy(),
         residual_px=residual.numpy(), detected=np.asarray(keypoints.detected, dtype=bool),
-        metadata={"keypoints": keypoints.summary(), "restarted_frames": restarted,
-                  "restart_threshold_px": threshold, "seconds": seconds,
+        metadata={"keypoints": keypoints.summary(),
+                  "landmarks": "MediaPipe's, offset on the model" if model is not hand else "the model's keypoints",
+                  "restarted_frames": restarted, "restart_threshold_px": threshold, "seconds": seconds,
                   "settings": dataclasses.asdict(settings)})
 
 

@@ -54,9 +54,12 @@ def choose_mode(folder, info, keypoints):
 
 
 def initialise_sequence(folder, method="mediapipe", keypoint_file=None, mode="auto", noise_degrees=10.0,
-                        noise_translation_m=0.01, seed=0, log=print, warn=None, progress="none"):
+                        noise_translation_m=0.01, seed=0, log=print, warn=None, progress="none",
+                        landmark_offsets=False):
     """Write folder/init.npz; returns the InitialEstimate. `progress` ("bar", "jsonl" or "none",
-    fit/progress.py) shows the MediaPipe detection and the initial fit step by step."""
+    fit/progress.py) shows the MediaPipe detection and the initial fit step by step.
+    `landmark_offsets`: compare MediaPipe's landmarks where they sit on the model
+    (InitialFitSettings.landmark_offsets)."""
     from ..fit.progress import Progress
 
     warn = warn or log
@@ -91,7 +94,7 @@ def initialise_sequence(folder, method="mediapipe", keypoint_file=None, mode="au
                                                "it; harp init --mode hand fits the hand alone" if mode == "arm" else ""))
         from .initial_fit import InitialFitSettings, fit_initial_estimate, planned_steps
 
-        settings = InitialFitSettings()
+        settings = InitialFitSettings(landmark_offsets=landmark_offsets)
         log(f"initial fit of pose and shape to the keypoints ({planned_steps(settings)} steps)")
         # each frame's pixels as the first frame's camera would see them: with a crop that follows
         # the hand the frames differ in their principal point alone (sequence.json)
