@@ -223,8 +223,9 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
     _decide_light(problem, state, reporter, solved=False)     # without an albedo solve: as the stages left it
     if state.texture_fill is None and not problem.known_appearance:
         state.texture_fill = fill_avatar_albedo(problem.avatar, decided_texels(problem))
-        reporter.log(f"albedo: {state.texture_fill['unseen_fraction']:.0%} of the texels never seen, filled "
-                     f"through the surface (seam contrast {state.texture_fill['seam_contrast_before']:.3f} -> "
+        reporter.log(f"albedo: {state.texture_fill['unseen_fraction']:.0%} of the texels not decided by the frames "
+                     f"(never seen, or only at the silhouette), filled through the surface "
+                     f"(seam contrast {state.texture_fill['seam_contrast_before']:.3f} -> "
                      f"{state.texture_fill['seam_contrast_after']:.3f})")
         save()
 

@@ -1,17 +1,16 @@
-"""Where MediaPipe puts its hand landmarks on our hand model.
+"""Where MediaPipe puts its hand landmarks on our hand model (`harp init --landmark-offsets`).
 
 The model's keypoints are its own (the synthetic clips' ground truth uses them). MediaPipe's
-landmarks sit elsewhere on the hand: its wrist nearer the palm, its thumb base further along,
-its fingertips inside the tips. Measured on synthetic clips, MediaPipe's landmarks spread about
-5% less in the image than the model's keypoints, so an initial fit that takes them for the
-model's keypoints places the hand about 7% too far from the camera; the fit, whose anchor
-holds that depth, then grows the hand to fill its silhouette (docs/initialisation.md,
-"MediaPipe's landmarks on the model").
+landmarks sit elsewhere on the hand: its wrist nearer the fingers, its thumb base further along,
+its fingertips inside the tips; in the image they spread about 5% less than the model's
+keypoints. Taken for the model's keypoints, they make the initial fit place the hand 6 - 9% too
+far, which MediaPipe's size estimate then offsets or adds to (docs/initialisation.md, "MediaPipe's
+landmarks on the model": the option is measured there and off by default).
 
 The offsets (pipeline/assets/mediapipe_landmarks.json, fitted by tools/calibrate_landmarks.py)
-move each keypoint, rigidly with its bone, to where MediaPipe's landmark is on the hand. The
-initial fit compares MediaPipe's landmarks with the model's keypoints moved so; everything after
-it (init.npz keypoints3d, the fit's anchor, evaluation) keeps the model's own keypoints.
+move each keypoint, rigidly with its bone, to where MediaPipe's landmark is on the hand. With
+the option the initial fit compares MediaPipe's landmarks with the keypoints moved so; whatever
+comes after it (init.npz keypoints3d, the fit's anchor, evaluation) keeps the model's own.
 """
 from __future__ import annotations
 
