@@ -355,9 +355,10 @@ def build_parser():
     init.add_argument("--seed", type=int, default=0, help="gt-noise: random seed")
     init.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar", help=PROGRESS_HELP)
     init.add_argument("--landmark-offsets", action="store_true",
-                      help="mediapipe: compare its landmarks where they sit on the hand model, not as the model's "
-                           "keypoints (measured in docs/initialisation.md: on a 1080p phone-like clip the avatar's "
-                           "surface error halved; on the 256 px demo clip the joints lost 0.7 mm)")
+                      help="take the keypoints for MediaPipe's landmarks (as --init mediapipe and its keypoints.json "
+                           "give) and compare them where they sit on the hand model, not as the model's keypoints "
+                           "(measured in docs/initialisation.md: on a 1080p phone-like clip the avatar's surface error "
+                           "halved; on the 256 px demo clip the joints lost 0.7 mm)")
     init.set_defaults(run=_init)
     return parser
 

@@ -68,9 +68,9 @@ class InitialFitSettings:
     restart_factor: float = 2.0     # restart frames with residual > factor * median ...
     restart_min_fraction: float = 0.05  # ... and > this fraction of the hand's size in pixels
     seed: int = 0
-    # MediaPipe's landmarks compared where they sit on the model (landmark_offsets.py), not taken
-    # for its keypoints: off by default, measured (docs/initialisation.md): the phone-like clip's
-    # avatar gains, the demo's loses
+    # the 2D keypoints (and 3D landmarks) taken for MediaPipe's landmarks and compared where they
+    # sit on the model (landmark_offsets.py), not for its keypoints: off by default, measured
+    # (docs/initialisation.md): the phone-like clip's avatar gains, the demo's loses
     landmark_offsets: bool = False
 
 
@@ -267,8 +267,8 @@ def fit_initial_estimate(keypoints, K, mode="hand", side="right", settings=None,
     start = time.perf_counter()
     model = model or HandModel.load(mode, side, dtype=dtype)
     hand = model      # the model's own keypoints: what init.npz holds and the fit anchors to
-    if keypoints.source == "mediapipe" and settings.landmark_offsets:
-        model = on_mediapipe_landmarks(model)    # compared with MediaPipe's landmarks where it puts them
+    if settings.landmark_offsets:      # the keypoints are MediaPipe's landmarks: compared where it puts them
+        model = on_mediapipe_landmarks(model)
     pixels = torch.as_tensor(keypoints.points, dtype=dtype)
     frames = pixels.shape[0]
     K = torch.as_tensor(np.asarray(K), dtype=dtype)
