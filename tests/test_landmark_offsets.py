@@ -6,7 +6,9 @@ only then."""
 import numpy as np
 import torch
 
+from pipeline.cli import main
 from pipeline.detection import mediapipe_hands
+from pipeline.formats import initial_estimate as ie
 from pipeline.formats import keypoint_file as kf
 from pipeline.formats import sequence_folder as seq
 from pipeline.handmodel.lbs import HandModel
@@ -14,7 +16,7 @@ from pipeline.handmodel.mirror import mirror_points
 from pipeline.init import initial_fit
 from pipeline.init.landmark_offsets import mediapipe_offsets, on_mediapipe_landmarks
 
-from test_initialisation import K, left_clip, render, synthetic_hands  # noqa: F401  (fixtures)
+from test_initialisation import K, left_clip, synthetic_hands  # noqa: F401  (left_clip: a fixture)
 
 
 def test_the_offsets_are_a_few_millimetres_and_mirror_for_the_left_hand():
@@ -83,3 +85,10 @@ def test_the_initial_fit_uses_the_offsets_when_asked():
     truth = torch.as_tensor(keypoints)
     # measured 3.2 px against 5.7 (the fit's own residual is about 3 px)
     assert image_error(with_offsets, truth) < 0.7 * image_error(by_default, truth)
+
+
+def test_the_init_command_takes_the_option(left_clip):  # noqa: F811
+    assert main(["init", str(left_clip), "--landmark-offsets", "--progress", "none"]) == 0
+    assert ie.read_initial_estimate(left_clip).metadata["landmarks"].startswith("MediaPipe")
+    assert main(["init", str(left_clip), "--progress", "none"]) == 0
+    assert ie.read_initial_estimate(left_clip).metadata["landmarks"] == "the model's keypoints"
