@@ -1,7 +1,8 @@
 """Benchmark: the phone-like synthetic clip of issue 30's acceptance, through the artist's path.
 
     .venv/bin/python benchmarks/bench_phone_clip.py OUT [--frames 30] [--identity 3] [--preset fast]
-        [--masks exact,video] [--window hand|mask] [--crop auto|frame|clip] [--threads 2] [--pictures DIR]
+        [--masks exact,video] [--window hand|mask] [--crop auto|frame|clip] [--landmark-offsets] [--threads 2]
+        [--pictures DIR]
 
 1. synth/render.py: the hand as a phone sees it: 1080 x 1920 portrait frames, a 26 mm-equivalent
    lens (44 degrees across the short side), the hand (with its forearm) a third of the frame
@@ -11,7 +12,7 @@
    ("exact") and with masks made from the frames alone ("video"), the ground truth carried
    through the crop (`--window`, `--crop`: the import's; other than the defaults, their own
    folders);
-3. `harp init` (MediaPipe), `harp fit --hold-out-every 5` with the preset;
+3. `harp init` (MediaPipe; `--landmark-offsets`, its own folders), `harp fit --hold-out-every 5` with the preset;
 4. `harp evaluate --novel-poses`: held-out frames (both protocols), the surface against the
    truth, new poses against Cycles renders of the true hand, the albedo's sharpness.
 Prints each step's time and the acceptance figures beside their targets (issue 30: held-out
@@ -75,6 +76,7 @@ def main(argv=None):
     parser.add_argument("--masks", default="exact,video", help="comma-separated: exact, video (default both)")
     parser.add_argument("--window", choices=("hand", "mask"), default="hand", help="harp import-video --window")
     parser.add_argument("--crop", choices=("auto", "frame", "clip"), default="auto", help="harp import-video --crop")
+    parser.add_argument("--landmark-offsets", action="store_true", help="harp init --landmark-offsets")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--pictures", type=Path, help="copy the fit and held-out grids here")
     args = parser.parse_args(argv)
@@ -85,9 +87,10 @@ def main(argv=None):
     args.out.mkdir(parents=True, exist_ok=True)
     source = args.out / "source"
     figures = {"frames": args.frames, "identity": args.identity, "preset": args.preset, "threads": args.threads,
-               "window": args.window, "crop": args.crop}
+               "window": args.window, "crop": args.crop, "landmark_offsets": args.landmark_offsets}
     variant = (f"_window_{args.window}" if args.window != "hand" else "") + (f"_crop_{args.crop}" if args.crop != "auto"
-                                                                             else "")
+                                                                             else "") \
+        + ("_landmark_offsets" if args.landmark_offsets else "")
     if not (source / seq.SEQUENCE_FILE).is_file():
         timed(figures, "render", lambda: subprocess.run(
             [sys.executable, str(ROOT / "synth" / "render.py"), "--out", str(source), "--overwrite", *PHONE,
@@ -100,7 +103,8 @@ def main(argv=None):
                 source, sequence, video_alone=kind == "video", log=lambda line: print(f"  {line}", flush=True),
                 window=args.window, crop=args.crop))
         if not (sequence / "init.npz").is_file():
-            timed(figures, f"{kind}_init", lambda: initialise_sequence(sequence, "mediapipe", log=lambda *a: None))
+            timed(figures, f"{kind}_init", lambda: initialise_sequence(sequence, "mediapipe", log=lambda *a: None,
+                                                                              landmark_offsets=args.landmark_offsets))
         if not (avatar / "report.json").is_file():
             timed(figures, f"{kind}_fit", lambda: fit(sequence, avatar, preset=args.preset, progress="bar",
                                                       hold_out_every=5, device="cpu"))
