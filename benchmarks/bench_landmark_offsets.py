@@ -32,6 +32,7 @@ from pipeline.handmodel.lbs import HandModel  # noqa: E402
 from pipeline.init.initial_fit import InitialFitSettings, fit_initial_estimate  # noqa: E402
 from pipeline.init.landmark_offsets import on_mediapipe_landmarks  # noqa: E402
 from pipeline.metrics import procrustes_error  # noqa: E402
+from pipeline.render.rasterize import project  # noqa: E402
 
 
 def render_clip(out, identity, side, samples, size):
@@ -48,10 +49,6 @@ def _spread(points):
     return float(np.linalg.norm(points - points.mean(-2, keepdims=True), axis=-1).mean())
 
 
-def _pixels(points, K):
-    return points[..., :2] / points[..., 2:] * K[:, None, [0, 1], [0, 1]] + K[:, None, :2, 2]
-
-
 def measure(folder):
     info = seq.read_sequence_info(folder)
     gt = seq.read_ground_truth(folder / info.ground_truth)
@@ -59,12 +56,12 @@ def measure(folder):
     found = keypoints.detected
     model = HandModel.load(gt.mode, gt.side, dtype=torch.float64)
     truth = [torch.as_tensor(np.asarray(a), dtype=torch.float64) for a in (gt.betas, gt.pose, gt.global_orient, gt.transl)]
-    K = info.frame_K()
+    K = torch.as_tensor(info.frame_K())
     row = {"clip": str(folder), "side": gt.side, "frames": int(info.frame_count), "detected": int(found.sum())}
     for name, on_model in (("keypoints", model), ("offsets", on_mediapipe_landmarks(model))):
         with torch.no_grad():
-            posed = on_model(*truth).keypoints[:, :21].numpy()
-        row[f"landmark_px_{name}"] = float(np.linalg.norm(_pixels(posed, K) - keypoints.points, axis=-1)[found].mean())
+            pixels = project(on_model(*truth).keypoints[:, :21], K).numpy()
+        row[f"landmark_px_{name}"] = float(np.linalg.norm(pixels - keypoints.points, axis=-1)[found].mean())
     true_points = gt.keypoints3d[:, :21]
     for name, offsets in (("keypoints", False), ("offsets", True)):
         estimate = fit_initial_estimate(keypoints, info.K, mode=gt.mode, side=gt.side,
