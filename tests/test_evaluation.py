@@ -247,3 +247,21 @@ def test_harp_evaluate_writes_evaluation_json(held_out_fit, tiny_clip, capsys):
     assert (out / albedo.ALBEDO_PICTURE).is_file()
     assert main(["evaluate", str(out.parent / "missing"), str(tiny_clip)]) == 1
     assert "not a finished fit" in capsys.readouterr().err
+
+
+def test_tone_contrast_of_a_fit_that_lifts_the_dark_skin():
+    """A palm-and-back albedo: the fitted dark skin 1.5 times too bright and the light skin 1.2
+    times (a common factor the light could take) gives contrast 1.25; scaled per tone it is exact."""
+    rng = np.random.default_rng(1)
+    truth = np.where(rng.uniform(size=(40, 40, 1)) < 0.6, [0.36, 0.23, 0.17], [0.8, 0.6, 0.47])
+    truth = truth * rng.uniform(0.9, 1.1, (40, 40, 1))
+    dark = truth.mean(-1) < 0.4
+    fitted = truth * np.where(dark, 1.5, 1.2)[..., None]
+    visible = np.ones((40, 40), bool)
+    tones = albedo.albedo_error(fitted, truth, visible)["tones"]
+    assert tones["dark"] == pytest.approx(1.5) and tones["light"] == pytest.approx(1.2)
+    assert tones["contrast"] == pytest.approx(1.25) and tones["dark_share"] == pytest.approx(dark.mean())
+    assert tones["psnr_scaled_per_tone"] > 100
+    assert albedo.albedo_error(fitted, truth, visible)["psnr_scaled"] < 40
+    # skin of one tone: nothing to compare
+    assert albedo.albedo_error(truth[dark][:, None], truth[dark][:, None], np.ones((dark.sum(), 1), bool))["tones"] is None

@@ -46,7 +46,36 @@ def albedo_error(fitted, truth, visible):
     mae, psnr = errors(f - g)
     mae_scaled, psnr_scaled = errors(f * scale - g)
     return {"mae": mae, "psnr": psnr, "scale": scale.tolist(), "mae_scaled": mae_scaled, "psnr_scaled": psnr_scaled,
-            "texels": int(len(f))}
+            "texels": int(len(f)), "tones": tone_contrast(f, g)}
+
+
+MIN_TONE_SHARE = 0.05     # of the visible texels each tone needs for tone_contrast to compare them
+MIN_TONE_STEP = 1.5       # and how much brighter the light tone must be than the dark one (medians)
+
+
+def tone_contrast(fitted, truth):
+    """How the fitted albedo gets the hand's light and dark skin (a palm and the back of a dark
+    hand) against each other, from fitted and true colours (N, 3) of the same texels: the truth's
+    texels split at the brightness half-way between its 10th and 90th percentiles; per tone the
+    median of fitted over true brightness (mean of the channels); `contrast` the dark tone's over
+    the light tone's (1: right; light and albedo trade only a common factor, so this is the
+    fit's error); `psnr_scaled_per_tone` the PSNR after the best per-channel scale of each tone
+    (what the right contrast would give). None for skin of one tone: either tone under
+    MIN_TONE_SHARE of the texels, or the light one less than MIN_TONE_STEP times as bright."""
+    brightness = truth.mean(1)
+    dark = brightness < (np.percentile(brightness, 10) + np.percentile(brightness, 90)) / 2
+    if min(dark.mean(), 1 - dark.mean()) < MIN_TONE_SHARE or \
+            np.median(brightness[~dark]) < MIN_TONE_STEP * np.median(brightness[dark]):
+        return None
+    ratios = {}
+    scaled = np.empty_like(fitted)
+    for name, tone in (("dark", dark), ("light", ~dark)):
+        ratios[name] = float(np.median(fitted[tone].mean(1) / np.maximum(brightness[tone], 1e-3)))
+        f, g = fitted[tone], truth[tone]
+        scaled[tone] = f * ((f * g).sum(0) / np.maximum((f * f).sum(0), 1e-12))
+    return {"dark": ratios["dark"], "light": ratios["light"], "contrast": ratios["dark"] / ratios["light"],
+            "dark_share": float(dark.mean()),
+            "psnr_scaled_per_tone": float(10 * np.log10(1 / max(np.square(scaled - truth).mean(), 1e-12)))}
 
 
 @dataclasses.dataclass

@@ -90,6 +90,11 @@ def summary_lines(result):
         lines.append(f"albedo in the visible UV area ({a['visible_fraction_of_uv_area']:.0%} of it): "
                      f"MAE {a['mae']:.4f}, PSNR {a['psnr']:.2f} dB; after per-channel scale ({scale}): "
                      f"MAE {a['mae_scaled']:.4f}, PSNR {a['psnr_scaled']:.2f} dB")
+        tones = a.get("tones")
+        if tones:
+            lines.append(f"albedo of dark and light skin ({tones['dark_share']:.0%} dark): fitted over true brightness "
+                         f"x{tones['dark']:.2f} and x{tones['light']:.2f}, contrast x{tones['contrast']:.2f} "
+                         f"(1: right); each tone scaled on its own: PSNR {tones['psnr_scaled_per_tone']:.2f} dB")
     if "fidelity" in result:
         geometry, poses, texture = (result["fidelity"][k] for k in ("geometry", "new_poses", "texture"))
         lines.append(f"fidelity to the true hand: surface {geometry['surface_mm_mean']:.2f} mm (95%: "
