@@ -1,6 +1,7 @@
 """The fitted albedo against the true one (synthetic clips): the fitted albedo.png against the
 sequence's gt_albedo.png in the visible UV area (texels seen in at least one frame), raw and
-after the best per-channel scale.
+after the best per-channel scale, and for skin of two tones how each tone's brightness came out
+(tone_contrast).
 
 Colours: both albedo images hold 8-bit display values in [0, 1]. The fit treats the 8-bit
 frames as linear, so its albedo lives in the same value space as the sRGB-encoded
