@@ -23,18 +23,22 @@ from pipeline.formats import sequence_folder as seq  # noqa: E402
 from pipeline.preview_render import label  # noqa: E402
 
 
-def render_bound(avatar, frames, samples=32):
-    """{sequence frame: (H, W, 4) float RGBA render} of the avatar bound into a new scene."""
+def render_bound(avatar, frames, samples=32, sequence=None, direct_light_only=False):
+    """({sequence frame: (H, W, 4) float RGBA render}, the BoundAvatar) of the avatar bound into a
+    new scene, with its recorded footage or `sequence`; `direct_light_only`: no bounces (the light
+    the fit models)."""
     import bpy
 
     from harp_addon import actions
     from harp_addon.scene import FIRST_FRAME
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    bound = actions.bind(avatar)
+    bound = actions.bind(avatar, sequence)
     scene = bpy.context.scene
     scene.render.engine = "CYCLES"
     scene.cycles.samples, scene.cycles.use_denoising = samples, False
+    if direct_light_only:
+        scene.cycles.max_bounces = 0
     scene.render.film_transparent = True
     scene.view_settings.view_transform = "Standard"
     renders = {}

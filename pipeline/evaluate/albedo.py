@@ -39,7 +39,7 @@ def albedo_error(fitted, truth, visible):
     g = np.asarray(truth, dtype=np.float64)[visible]
     if not len(f):
         raise EvaluationError("no visible texels to compare")
-    scale = (f * g).sum(0) / np.maximum((f * f).sum(0), 1e-12)
+    scale = best_scale(f, g)
 
     def errors(difference):
         return float(np.abs(difference).mean()), float(10 * np.log10(1 / max(np.square(difference).mean(), 1e-12)))
@@ -48,6 +48,12 @@ def albedo_error(fitted, truth, visible):
     mae_scaled, psnr_scaled = errors(f * scale - g)
     return {"mae": mae, "psnr": psnr, "scale": scale.tolist(), "mae_scaled": mae_scaled, "psnr_scaled": psnr_scaled,
             "texels": int(len(f)), "tones": tone_contrast(f, g)}
+
+
+def best_scale(fitted, truth):
+    """(3,) the per-channel factor that brings fitted colours (N, 3) nearest the true ones in least
+    squares."""
+    return (fitted * truth).sum(0) / np.maximum((fitted * fitted).sum(0), 1e-12)
 
 
 MIN_TONE_SHARE = 0.05     # of the visible texels each tone needs for tone_contrast to compare them
@@ -72,8 +78,7 @@ def tone_contrast(fitted, truth):
     scaled = np.empty_like(fitted)
     for name, tone in (("dark", dark), ("light", ~dark)):
         ratios[name] = float(np.median(fitted[tone].mean(1) / np.maximum(brightness[tone], 1e-3)))
-        f, g = fitted[tone], truth[tone]
-        scaled[tone] = f * ((f * g).sum(0) / np.maximum((f * f).sum(0), 1e-12))
+        scaled[tone] = fitted[tone] * best_scale(fitted[tone], truth[tone])
     return {"dark": ratios["dark"], "light": ratios["light"], "contrast": ratios["dark"] / ratios["light"],
             "dark_share": float(dark.mean()),
             "psnr_scaled_per_tone": float(10 * np.log10(1 / max(np.square(scaled - truth).mean(), 1e-12)))}
