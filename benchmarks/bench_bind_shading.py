@@ -6,8 +6,8 @@ same fitted frame (bpy).
 The add-on binds the fit folder FIT with its footage SEQ into an empty scene (its camera, keyed
 rig, skin material, sun and world); Cycles renders the first fitted frame (or the fitted frame
 `--frame`, its index among the fitted frames) with direct light only and the Standard view
-transform (tools/picture_blender_bind.py render_bound); our renderer draws the fitted avatar in the same frame, camera and size
-under its fitted light. Printed over the pixels both cover (2 px in from the outline): the
+transform (tools/picture_blender_bind.py render_bound); our renderer draws the fitted avatar
+in the same frame, camera and size under its fitted light. Printed over the pixels both cover (2 px in from the outline): the
 PSNR between the two, the Blender render's brightness over the fit's in bands of the fit's
 brightness, and the exponent k of the best power law blender = c * fit^k (1: the bind shades as
 the fit does; about 0.45: the fit's shading taken as linear light, docs/fidelity.md "Dark and
