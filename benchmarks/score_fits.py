@@ -45,6 +45,7 @@ def on_frames(avatar, fitted_frames, frames, sequence):
     subset = build_avatar(read_initial_estimate(sequence), frames, avatar.albedo.shape[-1], avatar.albedo.device)
     state = {name: value[index] if name in PER_FRAME else value for name, value in avatar.state_dict().items()}
     subset.load_state_dict(state)
+    subset.linear_light = avatar.linear_light
     return subset
 
 

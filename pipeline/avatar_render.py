@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from .formats import avatar_folder as av
-from .formats import environment_light, specular_lobe
+from .formats import colour_model, environment_light, specular_lobe
 from .formats import hand_model_file as fmt
 from .handmodel.lbs import HandModel
 from .handmodel.poses import NAMED_POSES
@@ -76,7 +76,7 @@ def render_avatar(folder, out, pose="rest", frame=None, azimuth=0.0, elevation=0
         images = render(vertices, RenderMesh.from_model_data(model.data), K, size, size, outputs=("rgb",),
                         appearance=appearance,
                         light=Light(light_position, ambient, shadows=use_shadows, environment=environment,
-                                    specular=specular),
+                                    specular=specular, linear=colour_model.is_linear(fitted)),
                         background=torch.tensor(background))
     image = (images["rgb"][0].clamp(0, 1).numpy() * 255).round().astype(np.uint8)
     out = Path(out)

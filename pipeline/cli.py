@@ -52,7 +52,7 @@ def _fit(args):
                  known_appearance=args.known_appearance, observers=observers, max_steps=args.max_steps,
                  exposure=args.exposure, solve_albedo=args.solve_albedo, budget_seconds=args.budget,
                  validation_frames=args.validation_frames, workers=args.workers, environment=args.environment,
-                 specular=args.specular)
+                 specular=args.specular, colour_model=args.colour_model)
     print(f"wrote {args.out} in {report['total_seconds']:.0f} s: {metrics_line(report['metrics'])}")
 
 
@@ -189,6 +189,10 @@ def build_parser():
                      help="the skin's specular lobe (a fitted roughness and sheen, carried into Blender's Principled "
                           "BSDF): auto (default) keeps it where its highlights are at least 3%% of the colour they lie on, "
                           "on, or off (docs/fidelity.md)")
+    fit.add_argument("--colour-model", choices=("display", "linear"), default=None,
+                     help="how the albedo and light make the frames' values: display (default) shades the 8-bit "
+                          "values as they are; linear decodes sRGB, shades in linear light and encodes, as a camera "
+                          "and Blender do (docs/fidelity.md)")
     fit.add_argument("--resume", action="store_true", help="continue from the avatar folder's checkpoint")
     fit.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar", help=PROGRESS_HELP)
     fit.add_argument("--threads", type=int, metavar="N", help=THREADS_HELP)

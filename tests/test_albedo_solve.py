@@ -195,3 +195,35 @@ def test_the_solve_takes_the_specular_sheen_off(problem):
     # are as far off in both: the solve leans on the current albedo there)
     assert errors["shiny"].mean() < 0.015 and errors["baked"].mean() > 1.5 * errors["shiny"].mean()
     assert np.median(errors["baked"]) > 2 * np.median(errors["shiny"])
+
+
+def test_in_linear_light_the_solve_finds_the_albedo_through_the_encoding_and_the_gains(problem):
+    """Frames drawn in linear light (formats/colour_model.py) with exposure gains: solved in linear
+    light, the albedo is the one they were drawn with; solved in display values, it is not."""
+    problem, truth = problem
+    avatar, display_frames = problem.avatar, problem.clip.images
+    gains = torch.tensor([[0.1, 0.0, -0.1], [-0.1, 0.05, 0.0], [0.0, 0.0, 0.0], [0.05, -0.05, 0.1]])
+    exposed = dataclasses.replace(problem, settings=dataclasses.replace(problem.settings, exposure="on"))
+    saved = avatar.exposure.detach().clone()
+    try:
+        with torch.no_grad():
+            avatar.exposure.copy_(gains)
+            avatar.linear_light = True
+            vertices, _ = avatar.posed(torch.arange(FRAMES))
+            problem.clip.images = render(vertices, avatar.mesh, problem.clip.K, SIZE, SIZE, outputs=("rgb",),
+                                         appearance=dataclasses.replace(avatar.appearance(), albedo=torch.as_tensor(
+                                             truth, dtype=avatar.albedo.dtype)), light=avatar.light(False))["rgb"] \
+                * avatar.exposure_gain(torch.arange(FRAMES))
+        linear, read = solved_albedo(exposed, shadows=False)
+        avatar.linear_light = False
+        display, _ = solved_albedo(exposed, shadows=False)
+    finally:
+        problem.clip.images = display_frames
+        avatar.linear_light = False
+        with torch.no_grad():
+            avatar.exposure.copy_(saved)
+    read = read.numpy() & (problem.uv_mask.numpy() > 0) & (truth.max(0) < 0.8)   # gains above 1 clip nothing there
+    errors = {name: np.abs(albedo.numpy() - truth).mean(0)[read].mean() for name, albedo in
+              (("linear", linear), ("display", display))}
+    # measured: 0.017 against 0.032
+    assert errors["linear"] < 0.02 and errors["display"] > 1.5 * errors["linear"], errors

@@ -185,3 +185,14 @@ def test_cycles_truth_shows_the_true_hand_where_our_renderer_does(tmp_path):
     assert len(scores["rows"]) == len(fidelity.VIEWS)
     assert all(np.isfinite(row[key]) for row in scores["rows"] for key in ("psnr", "ssim", "iou"))
     assert scores["iou_mean"] > 0.95 and torch.isfinite(torch.tensor(scores["renderer_floor"]["psnr_mean"]))
+
+
+def test_an_albedo_darker_all_over_is_as_sharp_at_the_truths_brightness(clip, tmp_path):
+    """The true avatar with its albedo at 0.8: its steps between texels are 0.8 as large (the plain
+    ratio 0.64), and at the truth's brightness (the per-channel scale) they are the truth's."""
+    folder = write_truth_avatar(tmp_path / "darker", clip)
+    albedo = seq.read_rgb(folder / av.ALBEDO_FILE)
+    seq.write_png(folder / av.ALBEDO_FILE, np.round(albedo * 0.8).astype(np.uint8))
+    texture = fidelity.evaluate_fidelity(folder, clip, picture=False)["texture"]
+    assert texture["sharpness_ratio"] == pytest.approx(0.64, abs=0.04)   # 8-bit rounding: 0.665
+    assert texture["sharpness_ratio_scaled"] == pytest.approx(1.0, abs=0.06)   # the rounding again: 1.04

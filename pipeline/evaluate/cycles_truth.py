@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..formats import colour_model
 from ..formats import sequence_folder as seq
 from ..render.renderer import Light
 
@@ -52,7 +53,8 @@ def fitted_light(description, metadata, frame):
     light = description["light"]
     position = torch.tensor(light["position"], dtype=torch.float32)
     position = position + torch.tensor([0.0, 0.0, frame.distance - float(metadata["camera"]["distance_m"])])
-    return Light(position, torch.tensor(float(light["ambient"])), shadows=bool(light["shadows"]))
+    return Light(position, torch.tensor(float(light["ambient"])), shadows=bool(light["shadows"]),
+                 linear=colour_model.is_linear(light))
 
 
 def cycles_truth(sequence, framings):

@@ -101,7 +101,9 @@ def summary_lines(result):
                      f"{geometry['surface_mm_p95']:.2f}), normals {geometry['normal_deg_mean']:.1f} deg, roughness "
                      f"{geometry['roughness_deg'] or float('nan'):.1f} deg; new poses PSNR {poses['psnr_mean']:.1f} dB "
                      f"(overlap {poses['psnr_overlap_mean']:.1f}), SSIM {poses['ssim_mean']:.3f}, IoU "
-                     f"{poses['iou_mean']:.3f}; albedo sharpness {texture['sharpness_ratio']:.2f}")
+                     f"{poses['iou_mean']:.3f}; albedo sharpness {texture['sharpness_ratio']:.2f}"
+                     + (f" ({texture['sharpness_ratio_scaled']:.2f} at the truth's brightness)"
+                        if "sharpness_ratio_scaled" in texture else ""))
         size = geometry.get("apart_from_size")
         if size and "fitted_shape_alone" in poses:
             shape, albedo = poses["fitted_shape_alone"], poses["fitted_albedo_alone"]

@@ -18,6 +18,7 @@ from synth.viewpoint import place_hand, view_rotation
 
 from ..formats import environment_light, specular_lobe
 from ..formats import sequence_folder as seq
+from ..formats.colour_model import DISPLAY, KEY, LINEAR, checked
 from ..formats.camera import project
 from ..handmodel.lbs import HandModel
 from ..render.renderer import Appearance, Light, RenderMesh, render
@@ -73,7 +74,7 @@ def posed_box(model, pose, betas):
 
 def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=(0.0, 0.0), azimuth=0.0, betas=None,
                turn_degrees=TURN_DEGREES, mode="hand", environment=None, specular=None, shadows=False,
-               light_position=LIGHT_POSITION):
+               light_position=LIGHT_POSITION, colour_model=DISPLAY):
     """Render `frames` frames of the hand in `pose` ((16, 3) or (F, 16, 3) axis-angle, radians,
     right hand) into the sequence folder `folder` with its exact ground truth (gt.npz,
     gt_albedo.png). The hand (its bounding box in frame 0's pose, centred) is 80% of the image
@@ -84,7 +85,8 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
     shape coefficient) default to the average hand; `environment` (8, 3) adds an environment light
     (formats/environment_light.py) to the point light and ambient; `specular` (roughness, level)
     gives the skin a specular lobe (formats/specular_lobe.py); `shadows` draws the point light's
-    self-shadows (at `light_position`, camera frame, metres). Returns the SequenceInfo."""
+    self-shadows (at `light_position`, camera frame, metres); `colour_model` (formats/colour_model.py)
+    shades the albedo's values as they are or in linear light. Returns the SequenceInfo."""
     model = HandModel.load(mode, "right", dtype=torch.float64)
     betas = np.broadcast_to(np.asarray(0.0 if betas is None else betas, dtype=np.float64), (model.num_betas,)).copy()
     pose = np.broadcast_to(np.asarray(pose, dtype=np.float64), (frames, 16, 3)).copy()
@@ -108,7 +110,8 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
                       shadows=shadows,
                       environment=None if environment is None else torch.as_tensor(environment, dtype=torch.float64),
                       specular=None if specular is None else tuple(torch.tensor(float(v), dtype=torch.float64)
-                                                                   for v in specular))
+                                                                   for v in specular),
+                      linear=checked(colour_model) == LINEAR)
         images = render(out.vertices, RenderMesh.from_model_data(model.data, dtype=torch.float64),
                         torch.as_tensor(K), size, size, outputs=("rgb", "alpha"),
                         appearance=Appearance(torch.as_tensor(albedo)), light=light,
@@ -128,7 +131,8 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
         light={"preset": "pipeline/evaluate/exact_clips.py", "position": list(light_position), "ambient": AMBIENT,
                "shadows": shadows,
                "environment": environment_light.to_description(environment),
-               specular_lobe.KEY: specular_lobe.to_description(*(specular or (None, None)))}))
+               specular_lobe.KEY: specular_lobe.to_description(*(specular or (None, None))),
+               KEY: colour_model}))
     seq.write_png(folder / seq.GT_ALBEDO_FILE, _to_uint8(albedo.transpose(1, 2, 0)))
     seq.write_sequence_info(folder, info)
     return info

@@ -33,7 +33,8 @@ albedo (gt.npz: shape and personal offsets; gt_albedo.png).
                 a user sees; the true hand by our renderer against the same renders is the floor
     texture     the albedo against the truth in the visible UV area (evaluate/albedo.py), the
                 sharpness ratio (gradient energy of the fitted albedo over the truth's, in the
-                visible area) and a crop of the most detailed visible region (a tattoo, when the
+                visible area; also with the albedo at the truth's brightness, the per-channel
+                scale applied) and a crop of the most detailed visible region (a tattoo, when the
                 identity has one) in the picture
 
 `fidelity.png`: true and fitted side by side in three new poses, and the detail crop.
@@ -50,6 +51,7 @@ import torch
 
 from .. import metrics
 from ..avatar_render import load_avatar, view_orientation
+from ..formats import colour_model
 from ..formats import hand_model_file as fmt
 from ..formats import sequence_folder as seq
 from ..handmodel.lbs import HandModel, load_model_data
@@ -241,14 +243,15 @@ def framing(truth_model, pose, azimuth, elevation, size=SIZE) -> Framing:
     return Framing(K, orient, joint_pose, shift, distance, size)
 
 
-def render_posed(subjects, truth_model, pose, azimuth, elevation, size=SIZE, shading_normals=False):
+def render_posed(subjects, truth_model, pose, azimuth, elevation, size=SIZE, shading_normals=False, linear=False):
     """[(rgb, alpha) (1, H, W, C)] of each (HandModel, Appearance) in `subjects` in `pose` from a
-    view, all placed alike (framing()) and lit by a point light up and left of the camera; with
+    view, all placed alike (framing()) and lit by a point light up and left of the camera, shaded
+    in linear light or not (the avatar's colour model, formats/colour_model.py); with
     `shading_normals`, (rgb, alpha, shading normal) each."""
     frame = framing(truth_model, pose, azimuth, elevation, size)
     d = frame.distance
-    return render_framed(subjects, frame, Light(torch.tensor([0.3 * d, -0.4 * d, 0.2 * d]), torch.tensor(AMBIENT)),
-                         shading_normals)
+    light = Light(torch.tensor([0.3 * d, -0.4 * d, 0.2 * d]), torch.tensor(AMBIENT), linear=linear)
+    return render_framed(subjects, frame, light, shading_normals)
 
 
 def render_framed(subjects, frame: Framing, light, shading_normals=False):
@@ -341,6 +344,10 @@ def evaluate_fidelity(avatar_folder, sequence, picture=True, cycles=False):
     fitted_albedo = appearance.albedo.permute(1, 2, 0).double().numpy()
     texture = albedo_error(fitted_albedo, known.image, known.visible)
     texture.update(sharpness_ratio=sharpness_ratio(fitted_albedo, known.image, known.visible),
+                   # the same at the truth's brightness (the per-channel scale): an albedo too light
+                   # all over has larger steps between its texels without being any sharper
+                   sharpness_ratio_scaled=sharpness_ratio(fitted_albedo * np.asarray(texture["scale"]), known.image,
+                                                          known.visible),
                    visible_fraction_of_uv_area=known.visible_fraction)
     scale = torch.tensor(texture["scale"], dtype=torch.float32).view(3, 1, 1)
     scaled = Appearance((appearance.albedo * scale).clamp(0, 1), appearance.normal_map)
@@ -359,7 +366,8 @@ def evaluate_fidelity(avatar_folder, sequence, picture=True, cycles=False):
                 (t_rgb, t_alpha, t_normal), (_, flat_alpha, flat_normal) = render_posed(
                     [(avatar_model, scaled), (avatar_model, appearance), (avatar_model, shape_alone),
                      (truth_model, albedo_alone), (truth_model, truth_appearance), (avatar_model, without_normal_map)],
-                    truth_model, pose, azimuth, elevation, shading_normals=True)
+                    truth_model, pose, azimuth, elevation, shading_normals=True,
+                    linear=colour_model.is_linear(files.description.get("light", {})))
             scores = image_scores(a_rgb, a_alpha, t_rgb, t_alpha)
             scores["psnr_raw"] = image_scores(raw_rgb, a_alpha, t_rgb, t_alpha)["psnr"]
             rows.append({"pose": name, "view": view, **scores})

@@ -29,7 +29,7 @@ def fitted_avatar(fit_folder, sequence, device=None):
     device = default_device(device)
     saved, report = load_finished_fit(fit_folder, device)
     avatar = build_avatar(read_initial_estimate(sequence), report["frames"], saved.avatar["albedo"].shape[-1], device,
-                          saved.settings.displacement_grid)
+                          saved.settings.displacement_grid, saved.settings.colour_model)
     avatar.load_state_dict(saved.avatar)
     return avatar, report
 

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from ..formats import environment_light
+from ..formats.colour_model import DISPLAY, LINEAR, checked
 from ..formats.specular_lobe import LEVEL_MAX, ROUGHNESS_RANGE
 from ..handmodel.lbs import HandModel
 from ..render.renderer import Appearance, Light, RenderMesh
@@ -49,9 +50,11 @@ class Avatar(torch.nn.Module):
     """Parameters of one fit. `model` is the subdivided HandModel of the clip's mode and side."""
 
     def __init__(self, model: HandModel, initial, frames, texture_size=512, light_position=None, coarse_model=None,
-                 displacement_parents=None):
+                 displacement_parents=None, colour_model=DISPLAY):
         super().__init__()
         self.model = model
+        # how the albedo and light make the frames' values (formats/colour_model.py; FitSettings.colour_model)
+        self.linear_light = checked(colour_model) == LINEAR
         self.coarse_model = coarse_model   # the unsubdivided model, for the alignment stage
         dtype, device = model.v_template.dtype, model.v_template.device
         # displacements on the unsubdivided mesh, carried to the subdivided one as the mean of each
@@ -122,7 +125,8 @@ class Avatar(torch.nn.Module):
 
     def light(self, shadows=False):
         return Light(self.light_position, self.ambient, shadows=shadows,
-                     environment=self.environment if bool(self.environment_on) else None, specular=self.specular())
+                     environment=self.environment if bool(self.environment_on) else None, specular=self.specular(),
+                     linear=self.linear_light)
 
     @torch.no_grad()
     def switch_environment(self, on: bool):

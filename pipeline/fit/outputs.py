@@ -14,7 +14,7 @@ import torch
 
 from .. import metrics
 from ..formats import avatar_folder as av
-from ..formats import environment_light, specular_lobe
+from ..formats import colour_model, environment_light, specular_lobe
 from ..formats.fit_report import HELD_OUT_FRAMES, write_report
 from ..render.renderer import render
 
@@ -162,7 +162,8 @@ def _write_avatar(out, problem, state, shadows):
         "mode": model_data.mode, "side": model_data.side, "betas": betas.tolist(),
         "light": {"position": avatar.light_position.detach().cpu().tolist(), "ambient": avatar.ambient.item(),
                   "shadows": shadows, "environment": environment_light.to_description(avatar.light().environment),
-                  specular_lobe.KEY: specular_lobe.to_description(*(avatar.specular() or (None, None)))},
+                  specular_lobe.KEY: specular_lobe.to_description(*(avatar.specular() or (None, None))),
+                  colour_model.KEY: settings.colour_model},
         "camera": camera_description(clip),
         "footage": {"sequence": str(problem.sequence.resolve()), "fps": clip.info.fps,
                     "frame_count": clip.info.frame_count, "width": clip.info.width, "height": clip.info.height},

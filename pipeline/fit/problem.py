@@ -14,6 +14,7 @@ from typing import Callable
 import numpy as np
 import torch
 
+from ..formats.colour_model import DISPLAY
 from ..formats.hand_model_file import ELBOW_KEYPOINT_NAME
 from ..formats.initial_estimate import InitialEstimate, read_initial_estimate
 from ..formats.sequence_folder import validate_sequence_folder
@@ -120,7 +121,8 @@ def build_problem(sequence, settings: FitSettings, frames, device=None, shared=N
         settings = dataclasses.replace(settings, texture_size=int(shared["albedo"].shape[-1]))
     clip = load_clip(sequence, settings.resolution, frames, device=device)
     settings, exposure_note = _decide_exposure(settings, clip)
-    avatar = build_avatar(initial, clip.frames, settings.texture_size, device, settings.displacement_grid)
+    avatar = build_avatar(initial, clip.frames, settings.texture_size, device, settings.displacement_grid,
+                          settings.colour_model)
     exposure_measured = None
     if settings.exposure == "on":
         exposure_measured = measured_exposure(clip)
@@ -212,10 +214,12 @@ def _silhouette_weight(clip, avatar, keypoints):
     return (kept if weight is None else weight * kept), int(cuts.any((1, 2)).sum())
 
 
-def build_avatar(initial: InitialEstimate, frames, texture_size, device=None, displacement_grid="coarse") -> Avatar:
+def build_avatar(initial: InitialEstimate, frames, texture_size, device=None, displacement_grid="coarse",
+                 colour_model=DISPLAY) -> Avatar:
     """A new Avatar over `frames` of the initial estimate, on the subdivided model of its mode
     and side (and the unsubdivided one for the alignment); its displacements on the subdivided
-    mesh ("fine") or on the unsubdivided one ("coarse", FitSettings.displacement_grid)."""
+    mesh ("fine") or on the unsubdivided one ("coarse", FitSettings.displacement_grid); shading
+    in the `colour_model` (formats/colour_model.py, FitSettings.colour_model)."""
     if displacement_grid not in ("coarse", "fine"):
         raise FitError(f"displacement_grid must be 'coarse' or 'fine', got {displacement_grid!r}")
     device = default_device(device)
@@ -223,7 +227,7 @@ def build_avatar(initial: InitialEstimate, frames, texture_size, device=None, di
     coarse_model = HandModel.load(initial.mode, initial.side, subdivided=False, device=device)
     parents = midpoint_parents(coarse_model.data) if displacement_grid == "coarse" else None
     return Avatar(model, initial, np.asarray(frames), texture_size, coarse_model=coarse_model,
-                  displacement_parents=parents)
+                  displacement_parents=parents, colour_model=colour_model)
 
 
 def _take_shared(avatar, shared):

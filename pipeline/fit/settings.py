@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from ..formats import colour_model
 from .energy_terms import ENERGY_TERMS, default_weights
 from .schedule import Schedule, StageKind
 
@@ -57,6 +58,10 @@ class FitSettings:
     # the skin's specular lobe (a roughness and a level, formats/specular_lobe.py): auto | on | off; `auto` fits
     # it and keeps it where it carries a visible share of the light (fitting.py)
     specular: str = "auto"
+    # how the albedo and light make the frames' values (formats/colour_model.py): "display" (the frames' 8-bit
+    # values shaded as they are) or "linear" (sRGB decoded, shaded in linear light and encoded, as a camera and
+    # Blender do)
+    colour_model: str = "display"
     # frames kept out of the fit and scored as it runs: the best state is written (validation.py). Off until it
     # is shown to help: with `fast` on the demo clip (3 seeds) it left held-out PSNR level (27.76 dB both), joints
     # 0.11 mm worse, 10% more time; on the sun clip it went back to an earlier state whose surface was 36% worse
@@ -75,6 +80,7 @@ class FitSettings:
     seed: int = 0
 
     def __post_init__(self):
+        colour_model.checked(self.colour_model)
         if not 0.0 < self.final_rate_fraction <= 1.0:
             raise ValueError(f"final_rate_fraction must be in (0, 1] (1: constant rates), "
                              f"got {self.final_rate_fraction}")
@@ -109,6 +115,7 @@ class FitSettings:
         values.setdefault("specular", "off")             # saved before the specular lobe
         values.setdefault("final_rate_fraction", 1.0)    # saved before the learning rates fell
         values.setdefault("plateau_tolerance", 0.0)      # saved before the rates halved on a plateau
+        values.setdefault("colour_model", "display")     # saved before the colour model was a choice
         if "steps" in values:
             values["steps"] = tuple(values["steps"])
         return cls(**values)

@@ -17,7 +17,9 @@ HIGHLIGHT_QUANTILE = 0.99   # a highlight covers a few per cent of the skin: its
 def specular_share(problem, shadows) -> dict:
     """The lobe's share of the colour the avatar shows on up to FRAMES of its fitted frames, on
     the rendered silhouette: {"mean": the summed sheen over the summed colour, "highlight": the
-    HIGHLIGHT_QUANTILE of the per-pixel share (grey levels)}; zeros with the lobe off."""
+    HIGHLIGHT_QUANTILE of the per-pixel share (grey levels)}; zeros with the lobe off. The sheen is
+    what the lobe adds to the frames' values (the render less the render without it), so it
+    reads the same in either colour model."""
     avatar, clip = problem.avatar, problem.clip
     light = avatar.light(shadows)
     if light.specular is None:
@@ -25,14 +27,14 @@ def specular_share(problem, shadows) -> dict:
     count = len(problem.frames)
     chosen = torch.linspace(0, count - 1, min(FRAMES, count), device=avatar.albedo.device).round().long().unique()
     appearance = avatar.appearance()
-    sheen_only = dataclasses.replace(appearance, albedo=torch.zeros_like(appearance.albedo))
+    matte = dataclasses.replace(light, specular=None)
     sheens, colours = [], []
     for batch in chosen.split(BATCH):
         vertices, _ = avatar.posed(batch)
         images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=("rgb", "alpha"),
                         appearance=appearance, light=light, antialiased=False)
-        sheen = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=("rgb",),
-                       appearance=sheen_only, light=light, antialiased=False)["rgb"]
+        sheen = images["rgb"] - render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width,
+                                       outputs=("rgb",), appearance=appearance, light=matte, antialiased=False)["rgb"]
         inside = images["alpha"][..., 0] > 0.5
         sheens.append(sheen.mean(-1)[inside])
         colours.append(images["rgb"].mean(-1)[inside])

@@ -4,10 +4,12 @@
     avatar.json    format + version, mode (hand / arm), side, shape vector, light (point light
                    position, ambient ratio, shadows, and the environment light's 8 x 3 spherical
                    harmonics or null: formats/environment_light.py; the skin's specular lobe,
-                   roughness and level, or null: formats/specular_lobe.py), camera (K, width, height of
-                   the fitted images), settings used, per-stage timings
-    albedo.png     albedo texture, 8-bit display values (the fit treats the frames' 8-bit values
-                   as linear), in the model's UV layout (v up)
+                   roughness and level, or null: formats/specular_lobe.py; the colour model,
+                   "display" or "linear", absent before the choice: formats/colour_model.py),
+                   camera (K, width, height of the fitted images), settings used, per-stage timings
+    albedo.png     albedo texture, 8-bit, in the model's UV layout (v up): sRGB-encoded where the
+                   colour model is "linear"; display values shaded as they are where it is
+                   "display" (the fit then treats the frames' 8-bit values as linear)
     normal.png     tangent-space normal map, 8-bit, (n + 1) / 2 per channel
     mesh.obj       the personalised rest mesh (shape and displacements applied), with UVs
     rig.npz        a hand-model file (formats/hand_model_file.py) of that rest mesh: vertices,

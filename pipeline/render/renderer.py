@@ -13,6 +13,7 @@ import dataclasses
 
 import torch
 
+from ..formats.colour_model import linear_to_srgb, srgb_to_linear
 from . import fused as fused_ops
 from . import interpolate as reference_interpolate
 from . import rasterize as reference_rasterize
@@ -95,6 +96,9 @@ class Light:
     environment: torch.Tensor | None = None
     # (roughness, level) of the skin's specular lobe (scalar tensors; formats/specular_lobe.py); None: none
     specular: tuple | None = None
+    # shade in linear light (formats/colour_model.py "linear"): the albedo decoded from sRGB, the lit colour
+    # encoded back; False: the albedo's values shaded as they are ("display")
+    linear: bool = False
 
 
 def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appearance=None,
@@ -139,16 +143,16 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
             uv, = ops.interpolate_many([mesh.uvs], frags, mesh.faces_uv)
         if "uv" in outputs:
             result["uv"] = to_image(uv, frags)
-    if {"rgb", "albedo"} & set(outputs):
-        if appearance is None:
-            raise ValueError("rgb/albedo outputs need an appearance")
-        albedo = sample_texture(appearance.albedo, uv)
-        if "albedo" in outputs:
-            result["albedo"] = to_image(albedo, frags)
+    if {"rgb", "albedo"} & set(outputs) and appearance is None:
+        raise ValueError("rgb/albedo outputs need an appearance")
+    if "rgb" in outputs and light is None:
+        raise ValueError("rgb output needs a light")
+    if "albedo" in outputs:
+        result["albedo"] = to_image(sample_texture(appearance.albedo, uv), frags)
     layers = []
     if "rgb" in outputs:
-        if light is None:
-            raise ValueError("rgb output needs a light")
+        # in linear light the texture is decoded before it is filtered, as Blender's image textures are
+        albedo = sample_texture(srgb_to_linear(appearance.albedo) if light.linear else appearance.albedo, uv)
         if appearance.normal_map is not None:
             value = sample_texture(appearance.normal_map, uv)
             normal = ops.perturbed_normal(smooth_normals, tangent, handedness[frags.face], value)
@@ -171,6 +175,8 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
 
 
 def _lit_colour(ops, points, faces, frags, position, albedo, normal, light):
+    """The colour of each fragment: `albedo` (linear already in linear light) lit, encoded to sRGB
+    in linear light."""
     light_position = light.position.to(points.dtype)
     if light_position.dim() == 2:
         light_position = light_position[frags.frame]
@@ -186,7 +192,7 @@ def _lit_colour(ops, points, faces, frags, position, albedo, normal, light):
         to_camera = torch.nn.functional.normalize(-position, dim=-1, eps=1e-12)   # the camera is the origin
         sheen = reference_shading.specular_shading(normal, to_light, to_camera, *light.specular) * (1 - light.ambient)
         colour = colour + (sheen if visibility is None else sheen * visibility)
-    return colour
+    return linear_to_srgb(colour) if light.linear else colour
 
 
 def _covered(frags):
