@@ -190,9 +190,10 @@ def build_parser():
                           "BSDF): auto (default) keeps it where its highlights are at least 3%% of the colour they lie on, "
                           "on, or off (docs/fidelity.md)")
     fit.add_argument("--colour-model", choices=("display", "linear"), default=None,
-                     help="how the albedo and light make the frames' values: display (default) shades the 8-bit "
-                          "values as they are; linear decodes sRGB, shades in linear light and encodes, as a camera "
-                          "and Blender do (docs/fidelity.md)")
+                     help="how the albedo and light make the frames' values: linear (default) decodes sRGB, shades "
+                          "in linear light and encodes, as a camera and Blender do, so the bound avatar renders as "
+                          "it was fitted; display shades the 8-bit values as they are, as fits before it did "
+                          "(docs/fidelity.md)")
     fit.add_argument("--resume", action="store_true", help="continue from the avatar folder's checkpoint")
     fit.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar", help=PROGRESS_HELP)
     fit.add_argument("--threads", type=int, metavar="N", help=THREADS_HELP)

@@ -37,12 +37,14 @@ def exact_clip(folder, frames, size=96, turn_degrees=25):
 def known_scene(folder):
     """Everything an exact clip was drawn with but its light (float64 torch), for the tests that
     recover one part of the light from it: {vertices (F, V, 3), mesh, K, height, width, frames
-    (F, H, W, 3) in [0, 1], masks (F, H, W, 1) bool, appearance (the true albedo)}."""
+    (F, H, W, 3) in [0, 1], masks (F, H, W, 1) bool, appearance (the true albedo), linear (the
+    clip was shaded in linear light: Light.linear)}."""
     import cv2
     import numpy as np
     import torch
 
     from pipeline.evaluate.exact_clips import mottled_albedo
+    from pipeline.formats import colour_model
     from pipeline.handmodel.lbs import HandModel
     from pipeline.render.renderer import Appearance, RenderMesh
 
@@ -57,7 +59,8 @@ def known_scene(folder):
     return {"vertices": torch.as_tensor(gt.vertices, dtype=torch.float64),
             "mesh": RenderMesh.from_model_data(model.data, dtype=torch.float64),
             "K": torch.as_tensor(np.asarray(info.K), dtype=torch.float64), "height": info.height, "width": info.width,
-            "frames": frames, "masks": masks, "appearance": Appearance(torch.as_tensor(mottled_albedo()))}
+            "frames": frames, "masks": masks, "appearance": Appearance(torch.as_tensor(mottled_albedo())),
+            "linear": colour_model.is_linear(gt.light)}
 
 
 def quick_fits(clips, names, out_root, **options):

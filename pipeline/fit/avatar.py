@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from ..formats import environment_light
-from ..formats.colour_model import DISPLAY, LINEAR, checked
+from ..formats.colour_model import LINEAR, checked
 from ..formats.specular_lobe import LEVEL_MAX, ROUGHNESS_RANGE
 from ..handmodel.lbs import HandModel
 from ..render.renderer import Appearance, Light, RenderMesh
@@ -50,7 +50,7 @@ class Avatar(torch.nn.Module):
     """Parameters of one fit. `model` is the subdivided HandModel of the clip's mode and side."""
 
     def __init__(self, model: HandModel, initial, frames, texture_size=512, light_position=None, coarse_model=None,
-                 displacement_parents=None, colour_model=DISPLAY):
+                 displacement_parents=None, colour_model=LINEAR):
         super().__init__()
         self.model = model
         # how the albedo and light make the frames' values (formats/colour_model.py; FitSettings.colour_model)

@@ -14,7 +14,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-from ..formats.colour_model import DISPLAY
+from ..formats.colour_model import LINEAR
 from ..formats.hand_model_file import ELBOW_KEYPOINT_NAME
 from ..formats.initial_estimate import InitialEstimate, read_initial_estimate
 from ..formats.sequence_folder import validate_sequence_folder
@@ -215,7 +215,7 @@ def _silhouette_weight(clip, avatar, keypoints):
 
 
 def build_avatar(initial: InitialEstimate, frames, texture_size, device=None, displacement_grid="coarse",
-                 colour_model=DISPLAY) -> Avatar:
+                 colour_model=LINEAR) -> Avatar:
     """A new Avatar over `frames` of the initial estimate, on the subdivided model of its mode
     and side (and the unsubdivided one for the alignment); its displacements on the subdivided
     mesh ("fine") or on the unsubdivided one ("coarse", FitSettings.displacement_grid); shading
