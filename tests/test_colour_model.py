@@ -4,11 +4,15 @@ decoded albedo, and a fit in linear light on a clip drawn so against the same fi
 values."""
 import dataclasses
 import json
+import shutil
+
+import cv2
 
 import numpy as np
 import pytest
 import torch
 
+from pipeline.avatar_render import load_avatar, render_avatar
 from pipeline.evaluate.albedo import albedo_error, albedo_truth
 from pipeline.evaluate.exact_clips import AMBIENT, write_clip
 from pipeline.fit.settings import FitSettings
@@ -97,13 +101,12 @@ def test_a_fit_in_linear_light_finds_the_albedo_the_clip_was_drawn_with(clips, f
     for model, report in fits.items():
         folder = report["out"]
         assert json.loads((folder / "avatar.json").read_text())["light"]["colour_model"] == model
-        from pipeline.avatar_render import load_avatar
-
         _, appearance, _ = load_avatar(folder)
         known = albedo_truth(clips / "linear", appearance.albedo.shape[-1], fit_folder=folder)
         errors[model] = albedo_error(appearance.albedo.permute(1, 2, 0).double().numpy(), known.image,
                                      known.visible)["mae"]
-    # measured: 0.052 against 0.076 (100 steps a stage), the display fit's albedo too dark by 7-10%
+    # measured in a run of 100 steps a stage: 0.052 against 0.076 (the linear fit's albedo 7% too light, the
+    # display fit's 10%), fitted PSNR 31.2 against 30.9 dB
     assert errors["linear"] < 0.8 * errors["display"], errors
     assert fits["linear"]["metrics"]["psnr_mean"] > fits["display"]["metrics"]["psnr_mean"]
 
@@ -111,12 +114,6 @@ def test_a_fit_in_linear_light_finds_the_albedo_the_clip_was_drawn_with(clips, f
 def test_harp_render_shades_a_folder_in_its_own_colour_model(fits, tmp_path):
     """The linear fit's folder rendered as written, and again with its colour model taken away (a
     folder from before the choice): the same avatar, lighter where it is shaded in linear light."""
-    import shutil
-
-    import cv2
-
-    from pipeline.avatar_render import render_avatar
-
     folder = tmp_path / "avatar"
     shutil.copytree(fits["linear"]["out"], folder)
     linear = cv2.imread(str(render_avatar(folder, tmp_path / "linear.png", size=128, background=(0, 0, 0)))) / 255
