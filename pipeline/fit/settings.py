@@ -60,9 +60,10 @@ class FitSettings:
     specular: str = "auto"
     # how the albedo and light make the frames' values (formats/colour_model.py): "linear" (sRGB decoded, shaded
     # in linear light and encoded, as a camera and Blender do) or "display" (the frames' 8-bit values shaded as
-    # they are, as HARP does and fits did before). linear: the demo's held-out PSNR level on 3 seeds, the phone-like
-    # clip's albedo twice as near the truth, and the Blender bind 34.2 dB from its fit there, against 21.1
-    # (docs/fidelity.md, "Shading in linear light")
+    # they are, as HARP does and fits did before). linear, on 3 seeds: held-out PSNR level on the demo and the
+    # phone-like clip, the latter's albedo nearer the truth on every seed (mean error 0.08-0.14 against 0.15-0.17),
+    # and the Blender bind shading as the fit does (34.2 dB against 21.1 where the room light is realisable;
+    # docs/fidelity.md, "Shading in linear light")
     colour_model: str = "linear"
     # frames kept out of the fit and scored as it runs: the best state is written (validation.py). Off until it
     # is shown to help: with `fast` on the demo clip (3 seeds) it left held-out PSNR level (27.76 dB both), joints
