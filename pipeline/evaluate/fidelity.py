@@ -341,6 +341,7 @@ def evaluate_fidelity(avatar_folder, sequence, picture=True, cycles=False):
         raise EvaluationError(f"the avatar is a {files.rig.side} hand, the sequence shows a {truth.data.side} one")
     size = appearance.albedo.shape[-1]
     known = albedo_truth(sequence, size, fit_folder=folder)
+    linear = colour_model.is_linear(files.description.get("light", {}))   # both hands drawn in the avatar's model
     fitted_albedo = appearance.albedo.permute(1, 2, 0).double().numpy()
     texture = albedo_error(fitted_albedo, known.image, known.visible)
     texture.update(sharpness_ratio=sharpness_ratio(fitted_albedo, known.image, known.visible),
@@ -367,7 +368,7 @@ def evaluate_fidelity(avatar_folder, sequence, picture=True, cycles=False):
                     [(avatar_model, scaled), (avatar_model, appearance), (avatar_model, shape_alone),
                      (truth_model, albedo_alone), (truth_model, truth_appearance), (avatar_model, without_normal_map)],
                     truth_model, pose, azimuth, elevation, shading_normals=True,
-                    linear=colour_model.is_linear(files.description.get("light", {})))
+                    linear=linear)
             scores = image_scores(a_rgb, a_alpha, t_rgb, t_alpha)
             scores["psnr_raw"] = image_scores(raw_rgb, a_alpha, t_rgb, t_alpha)["psnr"]
             rows.append({"pose": name, "view": view, **scores})
