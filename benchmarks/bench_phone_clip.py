@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bench_phone_clip.py OUT [--frames 30] [--identity 3] [--preset fast]
         [--masks exact,video] [--window hand|mask] [--crop auto|frame|clip] [--landmark-offsets] [--threads 2]
-        [--pictures DIR]
+        [--pictures DIR] [--seed 0] [--fit-options JSON]
 
 1. synth/render.py: the hand as a phone sees it: 1080 x 1920 portrait frames, a 26 mm-equivalent
    lens (44 degrees across the short side), the hand (with its forearm) a third of the frame
@@ -78,26 +78,35 @@ def main(argv=None):
     parser.add_argument("--crop", choices=("auto", "frame", "clip"), default="auto", help="harp import-video --crop")
     parser.add_argument("--landmark-offsets", action="store_true", help="harp init --landmark-offsets")
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--seed", type=int, default=0, help="the fit's seed (its own avatar folders other than 0)")
+    parser.add_argument("--fit-options", default="{}",
+                        help='FitSettings overrides as JSON, e.g. \'{"colour_model": "display"}\' (their own folders)')
     parser.add_argument("--pictures", type=Path, help="copy the fit and held-out grids here")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
+    fit_options = json.loads(args.fit_options)
+    if not isinstance(fit_options, dict):
+        parser.error(f"--fit-options takes a JSON object, got {args.fit_options!r}")
     kinds = [kind for kind in args.masks.split(",") if kind]
     if not kinds or any(kind not in ("exact", "video") for kind in kinds):
         parser.error(f"--masks takes exact and/or video, got {args.masks!r}")
     args.out.mkdir(parents=True, exist_ok=True)
     source = args.out / "source"
     figures = {"frames": args.frames, "identity": args.identity, "preset": args.preset, "threads": args.threads,
-               "window": args.window, "crop": args.crop, "landmark_offsets": args.landmark_offsets}
+               "window": args.window, "crop": args.crop, "landmark_offsets": args.landmark_offsets,
+               "seed": args.seed, "fit_options": fit_options}
     variant = (f"_window_{args.window}" if args.window != "hand" else "") + (f"_crop_{args.crop}" if args.crop != "auto"
                                                                              else "") \
         + ("_landmark_offsets" if args.landmark_offsets else "")
+    fit_variant = (f"_seed{args.seed}" if args.seed else "") + "".join(
+        f"_{name}_{value}" for name, value in sorted(fit_options.items()))
     if not (source / seq.SEQUENCE_FILE).is_file():
         timed(figures, "render", lambda: subprocess.run(
             [sys.executable, str(ROOT / "synth" / "render.py"), "--out", str(source), "--overwrite", *PHONE,
              "--frames", str(args.frames), "--identity", str(args.identity)], check=True))
     for kind in kinds:
         sequence = args.out / f"sequence_{kind}{variant}"
-        avatar = args.out / f"avatar_{kind}{variant}_{args.preset}"
+        avatar = args.out / f"avatar_{kind}{variant}_{args.preset}{fit_variant}"
         if not (sequence / seq.GT_FILE).is_file():
             timed(figures, f"{kind}_import", lambda: import_with_ground_truth(
                 source, sequence, video_alone=kind == "video", log=lambda line: print(f"  {line}", flush=True),
@@ -107,7 +116,8 @@ def main(argv=None):
                                                                               landmark_offsets=args.landmark_offsets))
         if not (avatar / "report.json").is_file():
             timed(figures, f"{kind}_fit", lambda: fit(sequence, avatar, preset=args.preset, progress="bar",
-                                                      hold_out_every=5, device="cpu"))
+                                                      hold_out_every=5, device="cpu", seed=args.seed,
+                                                      **fit_options))
         evaluation = timed(figures, f"{kind}_evaluate", lambda: evaluate_fit(avatar, sequence, device="cpu",
                                                                               novel_poses=True, progress="bar"))
         figures[kind] = acceptance(evaluation)
@@ -130,7 +140,7 @@ def main(argv=None):
         figures["video_alone_gap_db"] = gap
         print(f"  the video alone {gap:.2f} dB below the exact masks' held-out PSNR (target <= {VIDEO_ALONE_GAP_DB}): "
               f"{'met' if gap <= VIDEO_ALONE_GAP_DB else 'not met'}")
-    (args.out / f"bench_phone_clip{variant}.json").write_text(json.dumps(figures, indent=2))
+    (args.out / f"bench_phone_clip{variant}{fit_variant}.json").write_text(json.dumps(figures, indent=2))
 
 
 if __name__ == "__main__":

@@ -229,3 +229,51 @@ def test_in_linear_light_the_solve_finds_the_albedo_through_the_encoding_and_the
               (("linear", linear), ("display", display))}
     # measured: 0.017 against 0.032
     assert errors["linear"] < 0.02 and errors["display"] > 1.5 * errors["linear"], errors
+
+
+def test_least_squares_above_meets_the_optimality_conditions_of_its_constrained_problem():
+    """The environment solve's constrained least squares against the Karush-Kuhn-Tucker conditions:
+    feasible, and the objective's gradient a non-negative combination of the rows it holds at
+    their floor; with no row in the way, the plain solution."""
+    from pipeline.fit.albedo_solve import least_squares_above
+    generator = torch.Generator().manual_seed(3)
+    factor = torch.randn(8, 8, generator=generator, dtype=torch.float64)
+    normal = factor @ factor.t() + 0.5 * torch.eye(8, dtype=torch.float64)
+    rhs = 3 * torch.randn(8, generator=generator, dtype=torch.float64)
+    constraints = torch.randn(64, 8, generator=generator, dtype=torch.float64)
+    floor = -0.5
+    free = torch.linalg.solve(normal, rhs)
+    assert (constraints @ free < floor).sum() > 3                      # the free optimum breaks several rows
+    found = least_squares_above(normal, rhs, constraints, floor)
+    slack = constraints @ found - floor
+    scale = free.abs().max()
+    assert slack.min() > -1e-3 * scale                                  # feasible (to the stiffness's tolerance)
+    held = slack.abs() < 1e-3 * scale
+    assert held.any()
+    gradient = normal @ found - rhs
+    multipliers = torch.linalg.lstsq(constraints[held].t(), gradient[:, None]).solution[:, 0]
+    assert (constraints[held].t() @ multipliers - gradient).abs().max() < 1e-3 * gradient.abs().max()
+    assert multipliers.min() > -1e-6 * multipliers.abs().max()
+    # any other feasible point scores worse
+    objective = lambda x: 0.5 * x @ normal @ x - rhs @ x       # noqa: E731
+    for _ in range(200):
+        other = found + 0.05 * torch.randn(8, generator=generator, dtype=torch.float64)
+        if (constraints @ other - floor).min() >= 0:
+            assert objective(other) >= objective(found) - 1e-9
+    assert torch.equal(least_squares_above(normal, rhs, constraints, -100.0), free)
+
+
+def test_the_realisable_room_term_is_zero_for_a_room_that_shines_and_pulls_a_dark_one_up():
+    from pipeline.fit.losses import environment_realisable_loss
+    from pipeline.formats import environment_light as el
+    assert environment_realisable_loss(torch.zeros(8, 3, dtype=torch.float64), torch.tensor(0.3)).item() == 0.0
+    coefficients = torch.zeros(8, 3, dtype=torch.float64)
+    coefficients[1] = 1.0                                               # light from above, dark below
+    coefficients = coefficients.requires_grad_()
+    loss = environment_realisable_loss(coefficients, torch.tensor(0.3, dtype=torch.float64))
+    below = el.unclipped_radiance(el.sphere_directions(), coefficients.detach().numpy(), 0.3)
+    assert abs(loss.item() - np.square(np.clip(-below, 0, None)).mean()) < 1e-12
+    loss.backward()
+    assert coefficients.grad[1].min() > 0                               # less of the band: less dark below
+    assert torch.autograd.gradcheck(lambda c: environment_realisable_loss(c, torch.tensor(0.3, dtype=torch.float64)),
+                                    (coefficients.detach().clone().requires_grad_(),))

@@ -88,3 +88,28 @@ def test_the_torch_shading_matches_the_formula_and_the_renderer_adds_it():
                        antialiased=False)["rgb"][0, 16, 16]
         facing = el.shading_factor(np.array([[0.0, 0.0, -1.0]]), coefficients)[0]
         assert np.allclose(image.numpy(), albedo[:, 0, 0].numpy() * (0.5 + facing), atol=1e-9)
+
+
+def test_the_sphere_directions_are_unit_and_evenly_spread():
+    directions = el.sphere_directions(256)
+    assert np.abs(np.linalg.norm(directions, axis=1) - 1).max() < 1e-12
+    assert np.abs(directions.mean(0)).max() < 0.01                              # no side favoured
+    assert np.abs(directions.T @ directions / len(directions) - np.eye(3) / 3).max() < 0.01
+    # no direction farther than a few degrees from its nearest neighbour
+    cosine = directions @ directions.T
+    np.fill_diagonal(cosine, -1)
+    assert np.degrees(np.arccos(cosine.max(1))).max() < 15
+
+
+def test_the_unclipped_radiance_is_the_radiance_where_it_is_positive_and_the_basis_its_columns():
+    rng = np.random.default_rng(1)
+    coefficients = rng.normal(0, 0.3, (el.COEFFICIENTS, 3))
+    directions = el.sphere_directions(500)
+    unclipped = el.unclipped_radiance(directions, coefficients, 0.2)
+    assert unclipped.min() < 0 < unclipped.max()                               # the case worth testing
+    assert np.array_equal(el.radiance(directions, coefficients, 0.2), np.clip(unclipped, 0, None))
+    columns = np.stack(el.radiance_basis(*directions.T), axis=1)
+    assert np.abs(0.2 + columns @ coefficients - unclipped).max() < 1e-12
+    # torch takes the same functions
+    as_torch = torch.stack(el.radiance_basis(*torch.as_tensor(directions).T), dim=1).numpy()
+    assert np.abs(as_torch - columns).max() < 1e-12

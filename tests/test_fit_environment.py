@@ -77,6 +77,10 @@ def test_auto_keeps_a_coloured_room_light_and_switches_it_off_without_one(auto_f
     # its colour points the way the room's does: blue from the left, warm from below
     colour, true_colour = (c - c.mean(1, keepdims=True) for c in (found, truth))
     assert (colour * true_colour).sum() / np.linalg.norm(colour) / np.linalg.norm(true_colour) > 0.8
+    light = json.loads((auto_fits["room"]["out"] / "avatar.json").read_text())["light"]
+    # and the world it stands for is one Blender can show: nowhere darker than no light
+    world = el.unclipped_radiance(el.sphere_directions(2000), found, light["ambient"])
+    assert world.min() > -0.01, world.min()
     plain = auto_fits["plain"]
     decided = plain["environment"]["decision"]
     assert decided["on"] is False and decided["colour_strength"] < ENVIRONMENT_THRESHOLD

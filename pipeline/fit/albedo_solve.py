@@ -41,7 +41,7 @@ import dataclasses
 import torch
 
 from ..formats.colour_model import linear_to_srgb, srgb_to_linear
-from ..formats.environment_light import relative_strength
+from ..formats.environment_light import radiance_basis, relative_strength, sphere_directions
 from ..render.renderer import Appearance, render
 from ..render.shading import environment_basis_values
 from ..render.texture import bilinear_texels
@@ -59,6 +59,7 @@ CG_ITERATIONS = 300
 SOLVE_BATCH = 4         # frames rendered at once to gather the observations
 ENVIRONMENT_ROUNDS = 4  # alternations of the environment light's solve and the albedo's before the reweighting
 ENVIRONMENT_RIDGE = 1e-3   # the environment solve's pull towards a uniform room, against its mean diagonal
+ENVIRONMENT_STIFFNESS = 1e4   # its hold on the world's radiance at or above 0, likewise (least_squares_above)
 # the 3 x 3 stencil: offsets (row, column) to the neighbours a texel's equations couple it with
 STENCIL = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
 
@@ -135,6 +136,7 @@ def _solved_in_shading_space(problem, shadows, batch_size, current):
     seen = _observations(problem, shadows, batch_size, size)
     environment = problem.avatar.light().environment
     environment = None if environment is None else environment.detach().clone()
+    ambient = problem.avatar.ambient.item()
     if not len(seen.colour):                       # no frame shows a usable pixel of the hand
         return current.clone(), torch.zeros(current.shape[1:], dtype=torch.bool, device=current.device), environment
     uniform = torch.ones_like(seen.shading[:, 0])
@@ -142,7 +144,7 @@ def _solved_in_shading_space(problem, shadows, batch_size, current):
     albedo, solved = first.solve(current, ANCHOR * first.data_weight())
     if environment is not None:
         for _ in range(ENVIRONMENT_ROUNDS):
-            environment = _solved_environment(seen, albedo, uniform)
+            environment = _solved_environment(seen, albedo, uniform, ambient)
             seen = seen.under_environment(environment)
             first = _NormalEquations(size, seen, uniform)
             albedo, solved = first.solve(current, ANCHOR * first.data_weight())
@@ -150,18 +152,24 @@ def _solved_in_shading_space(problem, shadows, batch_size, current):
     for _ in range(REWEIGHTINGS):
         weights, clip_variance = _consistency_weights(seen, albedo, size)
         if environment is not None:
-            environment = _solved_environment(seen, albedo, weights)
+            environment = _solved_environment(seen, albedo, weights, ambient)
             seen = seen.under_environment(environment)
         prior = _prior_weight(seen, first.coverage, albedo, current, clip_variance) if prior is None else prior
         albedo, solved = _NormalEquations(size, seen, weights).solve(current, prior)
     return albedo, solved, environment
 
 
-def _solved_environment(seen, albedo, pixel_weight):
+def _solved_environment(seen, albedo, pixel_weight, ambient):
     """(8, 3) the environment light that explains the observations best for a fixed albedo:
     per colour, weighted least squares over every pixel of I - S0 a = (g a Y) . c, with a ridge
-    of ENVIRONMENT_RIDGE of the mean diagonal (a uniform room where the frames say nothing)."""
+    of ENVIRONMENT_RIDGE of the mean diagonal (a uniform room where the frames say nothing), and
+    a world it stands for that is nowhere darker than no light: the radiance a + R(d) . c >= 0
+    over the sphere (formats/environment_light.py, `ambient` a the light's ambient ratio). Left
+    free, the phone-like clip's rooms came out negative over a quarter of the sphere, which
+    Blender's world cannot show (docs/fidelity.md)."""
     at_pixel = seen.albedo_at(albedo)
+    directions = torch.as_tensor(sphere_directions(), dtype=at_pixel.dtype, device=at_pixel.device)
+    world = torch.stack(radiance_basis(directions[:, 0], directions[:, 1], directions[:, 2]), dim=1)   # (D, 8)
     columns = []
     for channel in range(3):
         design = (seen.gain[:, channel] * at_pixel[:, channel])[:, None] * seen.basis       # (N, 8)
@@ -169,8 +177,36 @@ def _solved_environment(seen, albedo, pixel_weight):
         normal = design.t() @ (design * pixel_weight[:, None])
         ridge = ENVIRONMENT_RIDGE * normal.diagonal().mean().clamp(min=1e-12)
         normal = normal + ridge * torch.eye(len(normal), dtype=normal.dtype, device=normal.device)
-        columns.append(torch.linalg.solve(normal, design.t() @ (pixel_weight * target)))
+        columns.append(least_squares_above(normal, design.t() @ (pixel_weight * target), world, -float(ambient)))
     return torch.stack(columns, dim=1)
+
+
+def least_squares_above(normal, rhs, constraints, floor, stiffness=ENVIRONMENT_STIFFNESS, rounds=50):
+    """(K,) x minimising 1/2 x' H x - b' x (H = `normal` (K, K) positive definite, b = `rhs` (K,))
+    subject to G x >= floor for the rows of G = `constraints` (D, K). Each row's shortfall is
+    penalised by its square, `stiffness` times H's mean diagonal, so that a row is left short by
+    about 1 / stiffness of the scale of x; the penalised problem (convex, piecewise quadratic) is
+    solved by Newton's method with a backtracking line search. The plain solution where no row is
+    in the way."""
+    weight = stiffness * normal.diagonal().mean()
+
+    def penalised(x):
+        shortfall = (floor - constraints @ x).clamp(min=0)
+        return 0.5 * x @ normal @ x - rhs @ x + 0.5 * weight * shortfall.square().sum()
+
+    x = torch.linalg.solve(normal, rhs)
+    for _ in range(rounds):
+        held = constraints[constraints @ x < floor]
+        if not len(held):
+            return x
+        step = torch.linalg.solve(normal + weight * held.t() @ held, rhs + weight * floor * held.sum(0)) - x
+        value, length = penalised(x), 1.0
+        while penalised(x + length * step) > value and length > 1e-6:
+            length /= 2
+        x = x + length * step
+        if length == 1.0 and torch.equal(constraints @ x < floor, constraints @ (x - step) < floor):
+            return x                                            # the same rows held: the penalised optimum
+    return x
 
 
 def _observations(problem, shadows, batch_size, size):

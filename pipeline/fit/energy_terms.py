@@ -232,3 +232,12 @@ def _exposure(batch):
        applies=lambda problem: bool(problem.avatar.environment_on))
 def _environment(batch):
     return losses.environment_prior_loss(batch.problem.avatar.environment)
+
+
+# ours: the world the environment and the ambient stand for nowhere darker than no light (the albedo
+# solve holds its environment so too); otherwise the bind's world, which clips it, lights the hand differently
+@_term("environment_realisable", 100.0, _APPEARANCE,
+       applies=lambda problem: bool(problem.avatar.environment_on))
+def _environment_realisable(batch):
+    avatar = batch.problem.avatar
+    return losses.environment_realisable_loss(avatar.environment, avatar.ambient)

@@ -10,6 +10,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from ..formats import environment_light
+
 KEYPOINT_UNIT = 0.1   # the anchor measures distances in units of 10 cm
 
 
@@ -172,6 +174,18 @@ def environment_prior_loss(coefficients):
     """Sum of squares of the environment light's coefficients (8, 3): no environment is the
     prior (a uniform room, all in the ambient ratio)."""
     return coefficients.square().sum()
+
+
+def environment_realisable_loss(coefficients, ambient):
+    """Mean over directions spread over the sphere and colours of the square of how far the radiance of
+    the world that the environment coefficients (8, 3) and the ambient ratio stand for
+    (a + sum_k c_k R_k(d), formats/environment_light.py) falls below 0: a room cannot shine
+    less than no light, and Blender's world clips what does."""
+    directions = torch.as_tensor(environment_light.sphere_directions(), dtype=coefficients.dtype,
+                                 device=coefficients.device)
+    world = torch.stack(environment_light.radiance_basis(directions[:, 0], directions[:, 1], directions[:, 2]), dim=1)
+    radiance = ambient + world @ coefficients
+    return torch.nn.functional.relu(-radiance).square().mean()
 
 
 def temporal_global_loss(rotations, translations, times, translation_unit=0.01):

@@ -63,13 +63,37 @@ def colour_strength(coefficients, ambient) -> float:
     return relative_strength(coefficients - coefficients.mean(1, keepdims=True), ambient)
 
 
+def radiance_basis(x, y, z):
+    """The 8 functions R_k(d) = Y_k(d) / (A_l / pi) at unit directions d = (x, y, z) (arrays of
+    one shape, numpy or torch), whose combination a + sum_k c_k R_k(d) is the radiance of the
+    world that the coefficients c and the ambient ratio a stand for (radiance())."""
+    return [value / COSINE_LOBE[band] for value, band in zip(basis(x, y, z), BANDS)]
+
+
+def sphere_directions(count=256):
+    """(count, 3) float64 unit directions spread evenly over the sphere (a Fibonacci lattice):
+    where the fit checks that its world's radiance is realisable (nowhere negative)."""
+    index = np.arange(count) + 0.5
+    z = 1.0 - 2.0 * index / count
+    azimuth = math.pi * (1.0 + math.sqrt(5.0)) * index
+    ring = np.sqrt(1.0 - z * z)
+    return np.stack([ring * np.cos(azimuth), ring * np.sin(azimuth), z], axis=1)
+
+
+def unclipped_radiance(directions, coefficients, ambient):
+    """(N, 3) a + sum_k c_k R_k(d) at unit directions (N, 3), negative where the coefficients
+    ask a world for less than no light (radiance() clips it)."""
+    directions = np.asarray(directions, dtype=np.float64)
+    values = np.stack(radiance_basis(directions[:, 0], directions[:, 1], directions[:, 2]), axis=1)
+    return float(ambient) + values @ np.asarray(coefficients, dtype=np.float64)
+
+
 def radiance(directions, coefficients, ambient):
     """(N, 3) the radiance of a world that lights a Lambertian surface as the fit's ambient and
     environment do: a + sum_k c_k / (A_l / pi) Y_k(d) at unit directions `directions` (N, 3)
-    (the direction the light comes from, camera frame); negative values clipped to 0."""
-    coefficients = np.asarray(coefficients, dtype=np.float64)
-    scale = np.array([1.0 / COSINE_LOBE[band] for band in BANDS])[:, None]
-    return np.clip(float(ambient) + shading_factor(directions, coefficients * scale), 0.0, None)
+    (the direction the light comes from, camera frame); negative values clipped to 0 (the fit
+    keeps them at or above 0: fit/albedo_solve.py, the `environment_realisable` energy term)."""
+    return np.clip(unclipped_radiance(directions, coefficients, ambient), 0.0, None)
 
 
 def equirectangular_directions(width, height, to_camera=None):
