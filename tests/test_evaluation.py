@@ -110,6 +110,29 @@ def test_the_held_out_protocols_start_from_the_neighbours_or_the_keypoints(held_
         held_out.evaluate_held_out(out, tiny_clip, steps=0, device="cpu", protocol="truth")
 
 
+def test_held_out_renders_are_also_scored_in_reference_masks(held_out_fit, tiny_clip):
+    """Masks a person drew for the held-out frames (benchmarks/bench_drawn_masks.py): scored inside
+    the clip's own masks they give the same figures; inside masks grown by a band the silhouette
+    agrees less; the poses are fitted to the clip's masks either way."""
+    import cv2
+
+    from pipeline.formats import sequence_folder as seq
+
+    out, _ = held_out_fit
+    own = np.stack([seq.read_mask(tiny_clip / seq.MASK_PATTERN.format(index=frame)) for frame in (2, 5)])
+    same = held_out.evaluate_held_out(out, tiny_clip, steps=2, device="cpu", reference_masks=own)
+    for name in ("psnr", "l1", "silhouette_iou"):
+        np.testing.assert_allclose(same.metrics_in_reference[name], same.metrics[name], rtol=1e-6)
+    grown = np.stack([cv2.dilate(mask.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0 for mask in own])
+    wider = held_out.evaluate_held_out(out, tiny_clip, steps=2, device="cpu", reference_masks=grown)
+    np.testing.assert_allclose(wider.metrics["psnr"], same.metrics["psnr"], rtol=1e-9)      # the same fit
+    assert wider.metrics_in_reference["silhouette_iou_mean"] < same.metrics["silhouette_iou_mean"] - 0.05
+    assert "metrics_in_reference" in wider.to_json() and "metrics_in_reference" not in \
+        held_out.evaluate_held_out(out, tiny_clip, steps=0, device="cpu").to_json()
+    with pytest.raises(held_out.EvaluationError, match="reference masks"):
+        held_out.evaluate_held_out(out, tiny_clip, steps=0, device="cpu", reference_masks=own[:1])
+
+
 def test_the_refinement_stops_when_the_loss_stops_falling():
     falling = list(np.linspace(1.0, 0.5, 40))
     assert not held_out.loss_converged(falling) and not held_out.loss_converged([1.0] * 19)

@@ -27,7 +27,7 @@ import torch
 from ..fit.avatar import LIGHT, MATERIAL, SHAPE, SWITCHES, TEXTURES, Avatar
 from ..fit.checkpoint import FitState
 from ..fit.pose_interpolation import start_from_neighbours
-from ..fit.outputs import score_renders, write_grid
+from ..fit.outputs import image_scores, score_renders, write_grid
 from ..fit.progress import Progress
 from ..fit.problem import build_problem, default_device
 from ..fit.energy_terms import ENERGY_TERMS
@@ -61,17 +61,19 @@ class HeldOutResult:
     avatar: Avatar            # its per-frame parameters are the held-out frames'
     protocol: str = "neighbours"
     converged: bool = False   # the neighbours protocol stopped on its own, before its cap
+    metrics_in_reference: dict | None = None   # the final renders scored in `reference_masks` (when given)
 
     def to_json(self):
         return {"frames": self.frames.tolist(), "protocol": self.protocol, "steps": len(self.history),
                 "converged": self.converged, "terms": list(HELD_OUT_TERMS),
                 "loss_before": self.loss_before, "loss_after": self.loss_after,
                 "loss_history": [entry["loss"] for entry in self.history], "shadows": self.shadows,
-                "events": self.events, "metrics": self.metrics, "metrics_before": self.metrics_before}
+                "events": self.events, "metrics": self.metrics, "metrics_before": self.metrics_before,
+                **({} if self.metrics_in_reference is None else {"metrics_in_reference": self.metrics_in_reference})}
 
 
 def evaluate_held_out(fit_folder, sequence, frames=None, steps=300, device=None, progress="none",
-                      picture=None, protocol="neighbours", stage_factors=None) -> HeldOutResult:
+                      picture=None, protocol="neighbours", stage_factors=None, reference_masks=None) -> HeldOutResult:
     """Fit pose, translation and light to frames the fit left out (default: the report's
     held-out frames), appearance and shape frozen; score them before and after. `protocol`
     (PROTOCOLS): "neighbours" starts from the fitted neighbours' poses and refines until the loss
@@ -79,7 +81,9 @@ def evaluate_held_out(fit_folder, sequence, frames=None, steps=300, device=None,
     `steps`. `progress`: "bar", "jsonl" or "none" (fit/progress.py); `picture`: a PNG path for
     the held-out frames as the fit's grid shows its own (input, render, difference).
     `stage_factors` ({term: {stage kind value: factor}}) are laid over the fit's own, to score one
-    fit under other weights (benchmarks/bench_held_out_weights.py)."""
+    fit under other weights (benchmarks/bench_held_out_weights.py). `reference_masks` ((K, H, W)
+    arrays, e.g. masks a person drew for these frames): the final renders are also scored inside
+    them (metrics_in_reference), the poses still fitted to the sequence's own masks."""
     if protocol not in PROTOCOLS:
         raise EvaluationError(f"held-out protocol {protocol!r}: choose one of {', '.join(PROTOCOLS)}")
     device = default_device(device)
@@ -107,21 +111,33 @@ def evaluate_held_out(fit_folder, sequence, frames=None, steps=300, device=None,
     def loss_and_scores():
         with torch.no_grad():
             loss, _ = run.energy(problem.all_frames(), backward=False)
-        rgb, _, scores = score_renders(problem, shadows)
-        return loss, {**scores, "silhouette_iou_mean": float(np.mean(scores["silhouette_iou"]))}, rgb
+        rgb, alpha, scores = score_renders(problem, shadows)
+        return loss, with_mean_iou(scores), rgb, alpha
 
-    loss_before, metrics_before, _ = loss_and_scores()
+    loss_before, metrics_before, _, _ = loss_and_scores()
     converged = False
     with Progress(progress, steps) as bar:
         while run.has_work and not run.finished and not converged:
             run.step()
             bar.update("held-out frames", len(state.history), state.history[-1]["loss"] if state.history else float("nan"))
             converged = protocol == "neighbours" and loss_converged([entry["loss"] for entry in state.history])
-    loss_after, metrics, rgb = loss_and_scores()
+    loss_after, metrics, rgb, alpha = loss_and_scores()
     if picture is not None:
         write_grid(picture, problem.clip, rgb)
+    in_reference = None
+    if reference_masks is not None:
+        masks = torch.as_tensor(np.asarray(reference_masks), dtype=rgb.dtype, device=rgb.device)
+        if masks.shape != problem.clip.masks.shape[:3]:
+            raise EvaluationError(f"reference masks of shape {tuple(masks.shape)} for {len(frames)} held-out frames "
+                                  f"of {problem.clip.height}x{problem.clip.width}")
+        reference = dataclasses.replace(problem.clip, masks=(masks > 0.5).to(rgb.dtype)[..., None])
+        in_reference = with_mean_iou(image_scores(rgb, alpha, reference, problem.silhouette_weight))
     return HeldOutResult(frames, metrics, metrics_before, loss_before, loss_after, state.history, state.events,
-                         shadows, problem.avatar, protocol, converged)
+                         shadows, problem.avatar, protocol, converged, in_reference)
+
+
+def with_mean_iou(scores) -> dict:
+    return {**scores, "silhouette_iou_mean": float(np.mean(scores["silhouette_iou"]))}
 
 
 def loss_converged(losses, window=CONVERGED_WINDOW, fraction=CONVERGED_FRACTION) -> bool:
