@@ -260,7 +260,8 @@ def set_specular_lobe(shader, light):
 def _fitted_light(name, collection, space, files, scene):
     """The fit's light as Blender lights: a sun from the direction of the fitted point light
     (seen from the hand), as strong as the fit's diffuse share (1 - ambient; a sun of strength
-    pi (1 - a) lights a surface facing it like the fit's shading does), and, when the scene has
+    pi (1 - a) lights a surface facing it like the fit's shading does), casting shadows only when
+    the fit shadowed the hand (avatar.json's light.shadows), and, when the scene has
     no world yet, a world of the ambient share and the environment light (_fitted_world)."""
     light = files.description.get("light", {})
     ambient = float(light.get("ambient", 0.6))
@@ -275,6 +276,9 @@ def _fitted_light(name, collection, space, files, scene):
     matrix[:3, 3] = centre - 0.3 * towards
     data = bpy.data.lights.new(f"{name} light", "SUN")
     data.energy = float(np.pi * (1 - ambient))
+    # the hand shadows itself from this light only where the fit decided it does: a fit without
+    # self-shadowing lit the far side of a finger from a light behind the hand (docs/blender.md)
+    data.use_shadow = bool(light.get("shadows", False))
     sun = bpy.data.objects.new(f"{name} light", data)
     collection.objects.link(sun)
     sun.parent = space

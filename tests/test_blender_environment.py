@@ -53,8 +53,48 @@ def test_the_bound_world_lights_the_skin_as_the_fit_does(tmp_path):
     assert np.abs(pixels[inside] - ambient).mean() > 5 * error.mean()
 
 
+@pytest.mark.parametrize("index", range(environment_light.COEFFICIENTS))
+def test_each_harmonic_alone_lights_the_sphere_as_the_fit_does(index, tmp_path):
+    """Each of the 8 harmonics on its own, so that a mirrored axis in the bake cannot hide behind
+    the others (the world was once mirrored front to back: the harmonics odd in the camera's z,
+    the direction it looks, came out with their signs turned)."""
+    coefficients = np.zeros((environment_light.COEFFICIENTS, 3))
+    coefficients[index] = 0.2
+    pixels = sphere_under_world(0.5, coefficients, tmp_path)
+    inside, normals_world = sphere_normals(SIZE, 0.8)
+    normals_camera = normals_world @ harp_scene.CAPTURE_TO_WORLD[:3, :3]
+    expected = 0.5 + environment_light.shading_factor(normals_camera, coefficients)
+    error = np.abs(pixels[inside] - expected).mean()
+    signal = np.abs(expected - 0.5).mean()
+    assert error < 0.25 * signal, (error, signal)     # measured 0.10-0.12; mirrored: 2.0
+
+
 def test_without_an_environment_the_world_is_the_ambient_share():
     world = harp_scene._fitted_world("plain", 0.4, None)
     background = next(node for node in world.node_tree.nodes if node.bl_idname == "ShaderNodeBackground")
     assert background.inputs["Strength"].default_value == pytest.approx(0.4)
     assert not any(node.bl_idname == "ShaderNodeTexEnvironment" for node in world.node_tree.nodes)
+
+
+@pytest.mark.parametrize("shadows", [False, True])
+def test_the_bound_sun_shines_from_the_fitted_light_and_shadows_only_as_the_fit_did(shadows):
+    """A fit without self-shadowing lit the hand's far side too: its sun casts no shadow then."""
+    from types import SimpleNamespace
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    collection = bpy.data.collections.new("harp")
+    scene.collection.children.link(collection)
+    space = bpy.data.objects.new("space", None)
+    collection.objects.link(space)
+    space.matrix_world = harp_scene.Matrix(harp_scene.CAPTURE_TO_WORLD.tolist())
+    files = SimpleNamespace(description={"light": {"ambient": 0.3, "position": [0.1, -0.3, 0.2], "shadows": shadows}},
+                            poses=SimpleNamespace(transl=np.array([[0.0, 0.0, 0.4], [0.0, 0.02, 0.4]])))
+    sun = harp_scene._fitted_light("test", collection, space, files, scene)
+    assert sun.data.type == "SUN" and sun.data.use_shadow is shadows
+    assert sun.data.energy == pytest.approx(np.pi * 0.7)
+    bpy.context.view_layer.update()
+    shining = -np.array(sun.matrix_world)[:3, 2]                         # a sun shines along its local -Z
+    towards = np.array([0.0, 0.01, 0.4]) - np.array([0.1, -0.3, 0.2])   # from the light to the hand
+    expected = harp_scene.CAPTURE_TO_WORLD[:3, :3] @ (towards / np.linalg.norm(towards))
+    assert np.abs(shining - expected).max() < 1e-6

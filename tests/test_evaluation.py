@@ -90,24 +90,79 @@ def test_held_out_evaluation_fits_pose_and_light_only(held_out_fit, tiny_clip, m
     assert seen and all(seen)
 
 
-def test_the_held_out_protocols_start_from_the_neighbours_or_the_keypoints(held_out_fit, tiny_clip):
+def matrix(axis_angle):
+    """The rotation matrix of an axis-angle vector (one rotation has two vectors at 180 degrees)."""
+    return Rotation.from_rotvec(np.asarray(axis_angle, dtype=np.float64)).as_matrix()
+
+
+def fit_whose_neighbours_are_right(out, tiny_clip, folder, turned_frames=()):
+    """A copy of the fit `out` with the true shape, whose fitted frames hold true poses such that
+    the held-out frames' neighbours give their true poses: fitted frames 1 and 3 hold frame 2's,
+    frame 4 holds frame 5's (the tiny clip moves too far between frames for the neighbours of a
+    real fit to be right). The fitted frames in `turned_frames` are turned 160 degrees about y,
+    as a pose across a fast turn can be."""
+    shutil.copytree(out, folder)
+    saved = load_checkpoint(out / CHECKPOINT_FILE)
+    gt = seq.read_ground_truth(tiny_clip / seq.GT_FILE)
+    fitted_frames = json.loads((out / "report.json").read_text())["frames"]
+    assert fitted_frames == [0, 1, 3, 4]
+    truth_of = [0, 2, 2, 5]
+    for name in ("global_orient", "transl", "pose"):
+        saved.avatar[name] = torch.as_tensor(getattr(gt, name)[truth_of], dtype=saved.avatar[name].dtype)
+    saved.avatar["betas"] = torch.as_tensor(gt.betas, dtype=saved.avatar["betas"].dtype)
+    saved.avatar["displacement"].zero_()
+    flip = Rotation.from_rotvec([0.0, np.radians(160), 0.0])
+    for frame in turned_frames:
+        index = fitted_frames.index(frame)
+        orient = saved.avatar["global_orient"][index].double().numpy()
+        saved.avatar["global_orient"][index] = torch.as_tensor((flip * Rotation.from_rotvec(orient)).as_rotvec())
+    save_checkpoint(folder / CHECKPOINT_FILE, saved)
+    return folder, saved
+
+
+def test_the_held_out_protocols_start_from_the_neighbours_or_the_keypoints(held_out_fit, tiny_clip, tmp_path):
     """Frame 2 lies half-way between the fitted frames 1 and 3, frame 5 after the last fitted
-    one (4): the neighbours protocol starts them there; the keypoints protocol from init.npz."""
+    one (4): the neighbours protocol starts them there where their poses explain the frame
+    better than the keypoints do (neighbours that give the true poses, against keypoints 5
+    degrees off); the keypoints protocol from init.npz."""
     from pipeline.formats.rotations import slerp_axis_angle
 
     out, _ = held_out_fit
-    saved = load_checkpoint(out / CHECKPOINT_FILE)
+    found, saved = fit_whose_neighbours_are_right(out, tiny_clip, tmp_path / "found")
     fitted = {name: saved.avatar[name].numpy() for name in ("global_orient", "transl", "pose")}   # frames 0 1 3 4
-    start = held_out.evaluate_held_out(out, tiny_clip, steps=0, device="cpu").avatar
+    result = held_out.evaluate_held_out(found, tiny_clip, steps=0, device="cpu")
+    assert not result.started_from_keypoints.any()
+    start = result.avatar
     np.testing.assert_allclose(start.transl.detach().numpy(), [(fitted["transl"][1] + fitted["transl"][2]) / 2,
-                                                                fitted["transl"][3]], atol=1e-12)
+                                                                fitted["transl"][3]], atol=1e-7)
     np.testing.assert_allclose(start.pose.detach().numpy()[0], slerp_axis_angle(fitted["pose"][1], fitted["pose"][2], 0.5),
-                               atol=1e-9)
-    np.testing.assert_allclose(start.global_orient.detach().numpy()[1], fitted["global_orient"][3], atol=1e-9)
-    keypoints = held_out.evaluate_held_out(out, tiny_clip, steps=0, device="cpu", protocol="keypoints").avatar
-    np.testing.assert_allclose(keypoints.pose.detach().numpy(), read_initial_estimate(tiny_clip).pose[[2, 5]])
+                               atol=1e-6)
+    np.testing.assert_allclose(matrix(start.global_orient.detach().numpy()[1]), matrix(fitted["global_orient"][3]),
+                               atol=1e-6)
+    keypoints = held_out.evaluate_held_out(found, tiny_clip, steps=0, device="cpu", protocol="keypoints")
+    np.testing.assert_allclose(keypoints.avatar.pose.detach().numpy(), read_initial_estimate(tiny_clip).pose[[2, 5]])
+    assert np.all(np.array(result.metrics_before["psnr"]) > np.array(keypoints.metrics_before["psnr"]))
     with pytest.raises(held_out.EvaluationError, match="protocol"):
         held_out.evaluate_held_out(out, tiny_clip, steps=0, device="cpu", protocol="truth")
+
+
+def test_a_frame_whose_neighbours_point_the_wrong_way_starts_from_its_keypoints(held_out_fit, tiny_clip, tmp_path):
+    """Frame 2's fitted neighbours (1 and 3) turned half round: frame 2 starts from init.npz and
+    scores as the keypoints protocol's start does; frame 5 (whose neighbour, 4, is right) from
+    its neighbour still."""
+    out, _ = held_out_fit
+    turned, saved = fit_whose_neighbours_are_right(out, tiny_clip, tmp_path / "turned", turned_frames=(1, 3))
+    result = held_out.evaluate_held_out(turned, tiny_clip, steps=0, device="cpu")
+    assert result.started_from_keypoints.tolist() == [True, False]
+    assert result.to_json()["started_from_keypoints"] == [2]
+    initial = read_initial_estimate(tiny_clip)
+    np.testing.assert_allclose(matrix(result.avatar.global_orient.detach().numpy()[0]), matrix(initial.global_orient[2]),
+                               atol=1e-6)
+    np.testing.assert_allclose(matrix(result.avatar.global_orient.detach().numpy()[1]),
+                               matrix(saved.avatar["global_orient"][3].numpy()), atol=1e-6)
+    keypoints = held_out.evaluate_held_out(turned, tiny_clip, steps=0, device="cpu", protocol="keypoints")
+    assert result.metrics_before["psnr"][0] == pytest.approx(keypoints.metrics_before["psnr"][0], abs=1e-6)
+    assert result.metrics_before["psnr"][1] > keypoints.metrics_before["psnr"][1]
 
 
 def test_held_out_renders_are_also_scored_in_reference_masks(held_out_fit, tiny_clip):

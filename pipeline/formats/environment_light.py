@@ -99,12 +99,13 @@ def radiance(directions, coefficients, ambient):
 def equirectangular_directions(width, height, to_camera=None):
     """(height, width, 3) unit directions, in the camera frame, of an equirectangular image's
     pixel centres as Blender's Environment Texture maps them onto its world (x towards u = 0.5,
-    z up, u increasing anticlockwise seen from above): longitude 2 pi (u - 0.5), latitude
-    pi (v - 0.5), v upwards (row 0 is the bottom in Blender's image space). `to_camera` (3, 3)
-    turns Blender world directions into the camera frame (default: identity)."""
+    z up, u increasing clockwise seen from above, as Cycles' u = 0.5 - atan2(y, x) / 2 pi):
+    longitude 2 pi (0.5 - u), latitude pi (v - 0.5), v upwards (row 0 is the bottom in
+    Blender's image space). `to_camera` (3, 3) turns Blender world directions into the camera
+    frame (default: identity)."""
     u = (np.arange(width) + 0.5) / width
     v = (np.arange(height) + 0.5) / height
-    longitude = 2.0 * math.pi * (u - 0.5)
+    longitude = 2.0 * math.pi * (0.5 - u)
     latitude = math.pi * (v - 0.5)
     lat, lon = np.meshgrid(latitude, longitude, indexing="ij")
     world = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)], axis=-1)
