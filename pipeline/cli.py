@@ -52,7 +52,8 @@ def _fit(args):
                  known_appearance=args.known_appearance, observers=observers, max_steps=args.max_steps,
                  exposure=args.exposure, solve_albedo=args.solve_albedo, budget_seconds=args.budget,
                  validation_frames=args.validation_frames, workers=args.workers, environment=args.environment,
-                 specular=args.specular, colour_model=args.colour_model)
+                 specular=args.specular, colour_model=args.colour_model,
+                 **({} if args.seed is None else {"seed": args.seed}))
     print(f"wrote {args.out} in {report['total_seconds']:.0f} s: {metrics_line(report['metrics'])}")
 
 
@@ -201,6 +202,8 @@ def build_parser():
     fit.add_argument("--workers", type=int, default=1, metavar="N",
                      help="N processes share each batch's frames (CPU): on 2 cores, 2 make full's steps 1.6-2.1x "
                           "faster, but fast's slower than --threads 2 (default 1; docs/performance.md)")
+    fit.add_argument("--seed", type=int, default=None,
+                     help="the fit's random seed (default 0): fit with several to see the spread of a figure")
     fit.add_argument("--hold-out-every", type=int, default=None, metavar="N",
                      help="leave every N-th frame out of the fit, for harp evaluate")
     fit.add_argument("--validation-frames", type=int, default=None, metavar="N",

@@ -53,6 +53,20 @@ def test_the_albedo_solve_is_on_unless_switched_off():
     assert not settings_for("fast", 10, solve_albedo=False).solve_albedo
 
 
+def test_harp_fit_passes_its_seed_to_the_fit_and_leaves_the_default_otherwise(monkeypatch):
+    import pipeline.fit
+
+    seen = []
+    monkeypatch.setattr(pipeline.fit, "fit", lambda *args, **options: seen.append(options) or
+                        {"total_seconds": 0.0, "metrics": {}})
+    monkeypatch.setattr("pipeline.fit.outputs.metrics_line", lambda metrics: "")
+    parser = build_parser()
+    for argv in (["fit", "seq", "--out", "a", "--seed", "3"], ["fit", "seq", "--out", "a"]):
+        args = parser.parse_args(argv)
+        args.run(args)
+    assert seen[0]["seed"] == 3 and "seed" not in seen[1]
+
+
 def test_preview_of_the_left_hand(tmp_path):
     assert main(["model", "preview", "--side", "left", "--size", "120", "--out", str(tmp_path / "left.png")]) == 0
     right = tmp_path / "right.png"

@@ -26,6 +26,7 @@ import torch
 
 from ..fit.avatar import LIGHT, MATERIAL, POSE, SHAPE, SWITCHES, TEXTURES, Avatar
 from ..fit.checkpoint import FitState
+from ..fit.clip_data import mask_at_size
 from ..fit.pose_interpolation import start_from_neighbours
 from ..fit.outputs import image_scores, score_renders, write_grid
 from ..fit.progress import Progress
@@ -132,11 +133,15 @@ def evaluate_held_out(fit_folder, sequence, frames=None, steps=300, device=None,
         write_grid(picture, problem.clip, rgb)
     in_reference = None
     if reference_masks is not None:
-        masks = torch.as_tensor(np.asarray(reference_masks), dtype=rgb.dtype, device=rgb.device)
-        if masks.shape != problem.clip.masks.shape[:3]:
-            raise EvaluationError(f"reference masks of shape {tuple(masks.shape)} for {len(frames)} held-out frames "
-                                  f"of {problem.clip.height}x{problem.clip.width}")
-        reference = dataclasses.replace(problem.clip, masks=(masks > 0.5).to(rgb.dtype)[..., None])
+        reference_masks = np.asarray(reference_masks)
+        info = problem.clip.info
+        if reference_masks.shape != (len(frames), info.height, info.width):
+            raise EvaluationError(f"reference masks of shape {reference_masks.shape} for {len(frames)} held-out frames "
+                                  f"of {info.width}x{info.height}")
+        size = (problem.clip.width, problem.clip.height)
+        masks = np.stack([mask_at_size(mask > 0.5, size) for mask in reference_masks])
+        reference = dataclasses.replace(problem.clip, masks=torch.as_tensor(masks[..., None], dtype=rgb.dtype,
+                                                                            device=rgb.device))
         in_reference = with_mean_iou(image_scores(rgb, alpha, reference, problem.silhouette_weight))
     return HeldOutResult(frames, metrics, metrics_before, loss_before, loss_after, state.history, state.events,
                          shadows, problem.avatar, protocol, converged, in_reference, started_from_keypoints)

@@ -68,12 +68,10 @@ def load_clip(folder, resolution=None, frames=None, device=None, dtype=torch.flo
         rgb = seq.read_rgb(seq.frame_path(folder, info, int(index)))
         hand = seq.read_mask(seq.mask_path(folder, info, int(index)))
         seq.check_mask(hand, int(index))
-        mask = hand.astype(np.float32)
         if scale != 1.0:
             rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
-            mask = cv2.resize(mask, size, interpolation=cv2.INTER_AREA)
         images.append(rgb.astype(np.float32) / 255)
-        masks.append((mask >= 0.5).astype(np.float32))
+        masks.append(mask_at_size(hand, size))
     K = info.frame_K()[frames]
     K[:, :2] *= np.array([[size[0] / info.width], [size[1] / info.height]])
     valid = None
@@ -83,6 +81,15 @@ def load_clip(folder, resolution=None, frames=None, device=None, dtype=torch.flo
     return ClipData(torch.as_tensor(np.stack(images), dtype=dtype, device=device),
                     torch.as_tensor(np.stack(masks)[..., None], dtype=dtype, device=device),
                     torch.as_tensor(K, dtype=dtype, device=device), info, frames, valid)
+
+
+def mask_at_size(hand, size) -> np.ndarray:
+    """(H', W') float32 0/1: the (H, W) bool mask `hand` at `size` (width, height) as the clip
+    holds its masks (area-averaged, then at least half hand)."""
+    mask = hand.astype(np.float32)
+    if (mask.shape[1], mask.shape[0]) != tuple(size):
+        mask = cv2.resize(mask, tuple(size), interpolation=cv2.INTER_AREA)
+    return (mask >= 0.5).astype(np.float32)
 
 
 def background_colour(images, masks, valid=None, margin=8):
