@@ -64,7 +64,7 @@ class HeldOutResult:
     protocol: str = "neighbours"
     converged: bool = False   # the neighbours protocol stopped on its own, before its cap
     metrics_in_reference: dict | None = None   # the final renders scored in `reference_masks` (when given)
-    started_from_keypoints: np.ndarray | None = None   # (K,) bool: frames whose refinement began at init.npz
+    started_from_keypoints: np.ndarray | None = None   # neighbours protocol: (K,) bool, frames begun at init.npz
 
     def to_json(self):
         return {"frames": self.frames.tolist(), "protocol": self.protocol, "steps": len(self.history),
@@ -111,7 +111,7 @@ def evaluate_held_out(fit_folder, sequence, frames=None, steps=300, device=None,
     schedule = Schedule((StageSpec(StageKind.HELD_OUT, steps),))
     state = FitState.fresh(schedule, "on" if shadows else "off")
     run = StageRun(problem, schedule[0], state, torch.Generator().manual_seed(settings.seed))
-    started_from_keypoints = np.ones(len(frames), dtype=bool)
+    started_from_keypoints = None            # the keypoints protocol: every frame, by definition
     if protocol == "neighbours":
         started_from_keypoints = _start_from_neighbours_or_keypoints(run, saved.avatar, report["frames"], frames)
 
