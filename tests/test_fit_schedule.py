@@ -101,7 +101,7 @@ def test_the_shaded_render_is_made_only_when_a_term_needs_it(tiny_clip, monkeypa
                         original(*args, **kwargs))
     frames = torch.arange(2)
     _, terms = batch_energy(problem, StageSpec(StageKind.APPEARANCE, 1), frames, False, torch.Generator())
-    assert outputs == [("alpha",)] and set(terms) == {"texture", "normal_map", "environment"}
+    assert outputs == [("alpha",)] and set(terms) == {"texture", "normal_map", "environment", "environment_realisable"}
     problem.settings.weights["photometric"] = 1.0
     _, terms = batch_energy(problem, StageSpec(StageKind.APPEARANCE, 1), frames, False, torch.Generator())
     assert outputs[-1] == ("alpha", "rgb") and "photometric" in terms
