@@ -165,6 +165,21 @@ def test_a_frame_whose_neighbours_point_the_wrong_way_starts_from_its_keypoints(
     assert result.metrics_before["psnr"][1] > keypoints.metrics_before["psnr"][1]
 
 
+def test_a_rollback_in_the_held_out_refinement_returns_to_the_chosen_start(held_out_fit, tiny_clip, tmp_path,
+                                                                           monkeypatch):
+    """Every step rolled back (as a diverging loss is): the frames end where they started, frame 5
+    at its neighbour's pose, not at the keypoints (a rollback once went back to the keypoints and
+    stayed there, every later step rolled back against the better start's loss)."""
+    out, _ = held_out_fit
+    turned, saved = fit_whose_neighbours_are_right(out, tiny_clip, tmp_path / "turned", turned_frames=(1, 3))
+    start = held_out.evaluate_held_out(turned, tiny_clip, steps=0, device="cpu")
+    monkeypatch.setattr(stage_run, "DIVERGENCE_FACTOR", 0.0)
+    rolled = held_out.evaluate_held_out(turned, tiny_clip, steps=3, device="cpu")
+    assert len(rolled.events) == 2 and all("rolled back" in event for event in rolled.events)   # step 0 has no best
+    for name in ("global_orient", "transl", "pose"):
+        assert torch.equal(getattr(rolled.avatar, name).detach(), getattr(start.avatar, name).detach()), name
+
+
 def test_held_out_renders_are_also_scored_in_reference_masks(held_out_fit, tiny_clip):
     """Masks a person drew for the held-out frames (benchmarks/bench_drawn_masks.py): scored inside
     the clip's own masks they give the same figures; inside masks grown by a band the silhouette

@@ -109,11 +109,16 @@ def evaluate_held_out(fit_folder, sequence, frames=None, steps=300, device=None,
                             shared={name: saved.avatar[name] for name in FROZEN + LIGHT + SWITCHES}, frozen=FROZEN)
     shadows = bool(saved.state.shadows.on)
     schedule = Schedule((StageSpec(StageKind.HELD_OUT, steps),))
-    state = FitState.fresh(schedule, "on" if shadows else "off")
-    run = StageRun(problem, schedule[0], state, torch.Generator().manual_seed(settings.seed))
+
+    def fresh_run():
+        state = FitState.fresh(schedule, "on" if shadows else "off")
+        return StageRun(problem, schedule[0], state, torch.Generator().manual_seed(settings.seed)), state
+
     started_from_keypoints = None            # the keypoints protocol: every frame, by definition
     if protocol == "neighbours":
-        started_from_keypoints = _start_from_neighbours_or_keypoints(run, saved.avatar, report["frames"], frames)
+        started_from_keypoints = _start_from_neighbours_or_keypoints(fresh_run()[0], saved.avatar, report["frames"],
+                                                                     frames)
+    run, state = fresh_run()    # made at the chosen start: a rollback returns there, not to the keypoints
 
     def loss_and_scores():
         with torch.no_grad():
