@@ -11,9 +11,10 @@ PSNR and L1 in the mask, MS-SSIM and silhouette IoU per frame and mean (fit/outp
 
 Two protocols differ in where the poses start and how long they are refined:
 - "neighbours" (the default): from the fitted poses of each frame's temporal neighbours
-  (fit/pose_interpolation.py), refined until the loss stops falling (less than
-  CONVERGED_FRACTION over CONVERGED_WINDOW steps) or a cap: the figure measures the avatar's
-  appearance, not how far a pose search gets from the keypoints.
+  (fit/pose_interpolation.py), or from its keypoint estimate where that explains the frame
+  better (across a fast turn the neighbours' pose can lie on the wrong side), refined until the
+  loss stops falling (less than CONVERGED_FRACTION over CONVERGED_WINDOW steps) or a cap: the
+  figure measures the avatar's appearance, not how far a pose search gets from the keypoints.
 - "keypoints" (the protocol before it, kept for continuity): from init.npz, a fixed number of steps.
 """
 from __future__ import annotations
@@ -82,14 +83,16 @@ def evaluate_held_out(fit_folder, sequence, frames=None, steps=300, device=None,
                       picture=None, protocol="neighbours", stage_factors=None, reference_masks=None) -> HeldOutResult:
     """Fit pose, translation and light to frames the fit left out (default: the report's
     held-out frames), appearance and shape frozen; score them before and after. `protocol`
-    (PROTOCOLS): "neighbours" starts from the fitted neighbours' poses and refines until the loss
+    (PROTOCOLS): "neighbours" starts from the fitted neighbours' poses (or the keypoints', frame by
+    frame, where those explain the frame better) and refines until the loss
     stops falling, at most `steps` steps; "keypoints" starts from init.npz and takes exactly
     `steps`. `progress`: "bar", "jsonl" or "none" (fit/progress.py); `picture`: a PNG path for
     the held-out frames as the fit's grid shows its own (input, render, difference).
     `stage_factors` ({term: {stage kind value: factor}}) are laid over the fit's own, to score one
     fit under other weights (benchmarks/bench_held_out_weights.py). `reference_masks` ((K, H, W)
-    arrays, e.g. masks a person drew for these frames): the final renders are also scored inside
-    them (metrics_in_reference), the poses still fitted to the sequence's own masks."""
+    arrays at the sequence's size, e.g. masks a person drew for these frames): the final renders
+    are also scored inside them, shrunk to the working size as the clip's own masks are
+    (metrics_in_reference); the poses are still fitted to the sequence's own masks."""
     if protocol not in PROTOCOLS:
         raise EvaluationError(f"held-out protocol {protocol!r}: choose one of {', '.join(PROTOCOLS)}")
     device = default_device(device)
