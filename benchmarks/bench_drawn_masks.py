@@ -32,6 +32,7 @@ from pipeline.evaluate.held_out import evaluate_held_out  # noqa: E402
 from pipeline.formats import sequence_folder as seq  # noqa: E402
 from pipeline.formats.fit_report import HELD_OUT_FRAMES, read_report  # noqa: E402
 from pipeline.formats.png_file import write_png  # noqa: E402
+from pipeline.metrics import mask_iou  # noqa: E402
 from timing import timed  # noqa: E402
 
 DRAWN_OUTLINE = (60, 230, 60)     # green: the drawn mask's edge
@@ -61,10 +62,6 @@ def with_masks(sequence: Path, copy: Path, masks: dict) -> Path:
     for frame, mask in masks.items():
         write_png(copy / seq.MASK_PATTERN.format(index=frame), mask.astype(np.uint8) * 255)
     return copy
-
-
-def iou(a, b) -> float:
-    return float((a & b).sum() / max((a | b).sum(), 1))
 
 
 def outline(mask, width=1):
@@ -107,7 +104,7 @@ def main(argv=None):
     drawn = drawn_masks(args.drawn, info)
     video = {frame: seq.read_mask(args.sequence / seq.MASK_PATTERN.format(index=frame)) for frame in drawn}
     figures = {"fit": str(args.fit), "drawn_frames": sorted(drawn),
-               "mask_iou": {frame: iou(video[frame], drawn[frame]) for frame in sorted(drawn)}}
+               "mask_iou": {frame: mask_iou(video[frame], drawn[frame]) for frame in sorted(drawn)}}
     figures["mask_iou_mean"] = float(np.mean(list(figures["mask_iou"].values())))
     print(f"the video's masks against the drawn ones: IoU {figures['mask_iou_mean']:.3f} (mean of {len(drawn)}; "
           f"lowest {min(figures['mask_iou'].values()):.3f})")

@@ -23,6 +23,7 @@ import numpy as np  # noqa: E402
 
 from pipeline.detection.hand_masks import clip_masks  # noqa: E402
 from pipeline.formats import sequence_folder as seq  # noqa: E402
+from pipeline.metrics import mask_iou  # noqa: E402
 
 
 def score_sequence(folder, step=1):
@@ -35,7 +36,7 @@ def score_sequence(folder, step=1):
     iou = []
     for index, mask in zip(picks, masks):
         truth = seq.read_mask(seq.mask_path(folder, info, index))
-        iou.append(float((mask & truth).sum() / max((mask | truth).sum(), 1)))
+        iou.append(mask_iou(mask, truth))
     iou = np.array(iou)
     return {"clip": Path(folder).name, "frames": len(picks), "size": info.width, "iou_mean": float(iou.mean()),
             "iou_min": float(iou.min()), "worst_frame": picks[int(iou.argmin())],

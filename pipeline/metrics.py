@@ -32,6 +32,11 @@ def silhouette_iou(alpha, mask, threshold=0.5):
     return (a & b).sum((1, 2, 3)).to(torch.float64) / union
 
 
+def mask_iou(a, b) -> float:
+    """Intersection over union of two boolean masks (numpy arrays of one shape); 0 for two empty ones."""
+    return float((a & b).sum() / max((a | b).sum(), 1))
+
+
 def _gaussian_window(size=11, sigma=1.5, dtype=torch.float64, device=None):
     x = torch.arange(size, dtype=dtype, device=device) - (size - 1) / 2
     g = torch.exp(-x * x / (2 * sigma * sigma))

@@ -64,3 +64,13 @@ def test_procrustes_removes_similarity_transforms():
     assert 0 < error < 0.002
     mirrored = target * torch.tensor([-1.0, 1.0, 1.0])  # a reflection is not a rotation
     assert metrics.procrustes_error(mirrored[None], target[None]).item() > 0.01
+
+
+def test_mask_iou_of_known_overlaps():
+    a = np.zeros((4, 4), bool)
+    b = np.zeros((4, 4), bool)
+    a[:2] = True                          # 8 pixels
+    b[1:3] = True                         # 8 pixels, 4 shared
+    assert metrics.mask_iou(a, b) == pytest.approx(4 / 12)
+    assert metrics.mask_iou(a, a) == 1.0 and metrics.mask_iou(a, ~a) == 0.0
+    assert metrics.mask_iou(np.zeros((2, 2), bool), np.zeros((2, 2), bool)) == 0.0

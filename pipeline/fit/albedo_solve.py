@@ -41,9 +41,9 @@ import dataclasses
 import torch
 
 from ..formats.colour_model import linear_to_srgb, srgb_to_linear
-from ..formats.environment_light import radiance_basis, relative_strength, sphere_directions
+from ..formats.environment_light import relative_strength
 from ..render.renderer import Appearance, render
-from ..render.shading import environment_basis_values
+from ..render.shading import environment_basis_values, sphere_radiance_basis
 from ..render.texture import bilinear_texels
 
 MIN_COVERAGE = 1.0      # bilinear weight (about one pixel's worth) a texel needs to be solved
@@ -168,8 +168,7 @@ def _solved_environment(seen, albedo, pixel_weight, ambient):
     free, the phone-like clip's rooms came out negative over a quarter of the sphere, which
     Blender's world cannot show (docs/fidelity.md)."""
     at_pixel = seen.albedo_at(albedo)
-    directions = torch.as_tensor(sphere_directions(), dtype=at_pixel.dtype, device=at_pixel.device)
-    world = torch.stack(radiance_basis(directions[:, 0], directions[:, 1], directions[:, 2]), dim=1)   # (D, 8)
+    world = sphere_radiance_basis(at_pixel.dtype, at_pixel.device)     # (D, 8)
     columns = []
     for channel in range(3):
         design = (seen.gain[:, channel] * at_pixel[:, channel])[:, None] * seen.basis       # (N, 8)

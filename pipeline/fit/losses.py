@@ -10,7 +10,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from ..formats import environment_light
+from ..render.shading import sphere_radiance_basis
 
 KEYPOINT_UNIT = 0.1   # the anchor measures distances in units of 10 cm
 
@@ -181,10 +181,7 @@ def environment_realisable_loss(coefficients, ambient):
     the world that the environment coefficients (8, 3) and the ambient ratio stand for
     (a + sum_k c_k R_k(d), formats/environment_light.py) falls below 0: a room cannot shine
     less than no light, and Blender's world clips what does."""
-    directions = torch.as_tensor(environment_light.sphere_directions(), dtype=coefficients.dtype,
-                                 device=coefficients.device)
-    world = torch.stack(environment_light.radiance_basis(directions[:, 0], directions[:, 1], directions[:, 2]), dim=1)
-    radiance = ambient + world @ coefficients
+    radiance = ambient + sphere_radiance_basis(coefficients.dtype, coefficients.device) @ coefficients
     return torch.nn.functional.relu(-radiance).square().mean()
 
 

@@ -3,9 +3,12 @@ HARP light model  colour = albedo * (a + (1 - a) * max(0, n' . l) * V), and the 
 light's and the specular lobe's shares of it (formats/environment_light.py, formats/specular_lobe.py)."""
 from __future__ import annotations
 
+import functools
+
 import torch
 
 from ..formats.environment_light import basis as environment_basis
+from ..formats.environment_light import radiance_basis, sphere_directions
 from ..formats.specular_lobe import BASE_REFLECTANCE
 
 
@@ -72,6 +75,15 @@ def environment_basis_values(normal):
     """(..., 8) the environment light's harmonics Y_k at unit normals (..., 3) (camera frame;
     formats/environment_light.py)."""
     return torch.stack(environment_basis(normal[..., 0], normal[..., 1], normal[..., 2]), dim=-1)
+
+
+@functools.lru_cache(maxsize=8)
+def sphere_radiance_basis(dtype, device) -> torch.Tensor:
+    """(D, 8) the environment's radiance functions R_k (formats/environment_light.radiance_basis)
+    at the directions spread over the sphere where the fit holds its room's radiance
+    a + R . c at or above 0 (sphere_directions); made once per dtype and device, never modified."""
+    directions = torch.as_tensor(sphere_directions(), dtype=dtype, device=device)
+    return torch.stack(radiance_basis(directions[:, 0], directions[:, 1], directions[:, 2]), dim=1)
 
 
 def environment_shading(normal, coefficients):
