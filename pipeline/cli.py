@@ -52,7 +52,7 @@ def _fit(args):
                  known_appearance=args.known_appearance, observers=observers, max_steps=args.max_steps,
                  exposure=args.exposure, solve_albedo=args.solve_albedo, budget_seconds=args.budget,
                  validation_frames=args.validation_frames, workers=args.workers, environment=args.environment,
-                 specular=args.specular, colour_model=args.colour_model,
+                 specular=args.specular, colour_model=args.colour_model, occlusion=args.occlusion,
                  **({} if args.seed is None else {"seed": args.seed}))
     print(f"wrote {args.out} in {report['total_seconds']:.0f} s: {metrics_line(report['metrics'])}")
 
@@ -195,6 +195,10 @@ def build_parser():
                           "in linear light and encodes, as a camera and Blender do, so the bound avatar renders as "
                           "it was fitted; display shades the 8-bit values as they are, as fits before it did "
                           "(docs/fidelity.md)")
+    fit.add_argument("--occlusion", choices=("on", "off"), default=None,
+                     help="the room light (ambient and environment) held back where the hand itself is in its way, "
+                          "between the fingers and in a closing palm, as Cycles and a real room do: on (default) or "
+                          "off (every point sees the whole room, HARP's light; docs/fidelity.md)")
     fit.add_argument("--resume", action="store_true", help="continue from the avatar folder's checkpoint")
     fit.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar", help=PROGRESS_HELP)
     fit.add_argument("--threads", type=int, metavar="N", help=THREADS_HELP)

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..formats import colour_model
+from ..formats import colour_model, environment_light, specular_lobe
 from ..formats import sequence_folder as seq
 from ..render.renderer import Light
 
@@ -53,7 +53,11 @@ def fitted_light(description, metadata, frame):
     light = description["light"]
     position = torch.tensor(light["position"], dtype=torch.float32)
     position = position + torch.tensor([0.0, 0.0, frame.distance - float(metadata["camera"]["distance_m"])])
+    environment = environment_light.from_description(light)
+    lobe = specular_lobe.from_description(light)
     return Light(position, torch.tensor(float(light["ambient"])), shadows=bool(light["shadows"]),
+                 environment=None if environment is None else torch.as_tensor(environment, dtype=torch.float32),
+                 specular=None if lobe is None else tuple(torch.tensor(value) for value in lobe),
                  linear=colour_model.is_linear(light))
 
 

@@ -21,6 +21,7 @@ from ..formats import sequence_folder as seq
 from ..formats.colour_model import KEY, LINEAR, checked
 from ..formats.camera import project
 from ..handmodel.lbs import HandModel
+from ..render.occlusion import hand_focus, lost_light
 from ..render.renderer import Appearance, Light, RenderMesh, render
 
 BACKGROUND = (0.25, 0.27, 0.3)
@@ -74,7 +75,7 @@ def posed_box(model, pose, betas):
 
 def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=(0.0, 0.0), azimuth=0.0, betas=None,
                turn_degrees=TURN_DEGREES, mode="hand", environment=None, specular=None, shadows=False,
-               light_position=LIGHT_POSITION, colour_model=LINEAR):
+               light_position=LIGHT_POSITION, colour_model=LINEAR, occlusion=True):
     """Render `frames` frames of the hand in `pose` ((16, 3) or (F, 16, 3) axis-angle, radians,
     right hand) into the sequence folder `folder` with its exact ground truth (gt.npz,
     gt_albedo.png). The hand (its bounding box in frame 0's pose, centred) is 80% of the image
@@ -86,8 +87,9 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
     (formats/environment_light.py) to the point light and ambient; `specular` (roughness, level)
     gives the skin a specular lobe (formats/specular_lobe.py); `shadows` draws the point light's
     self-shadows (at `light_position`, camera frame, metres); `colour_model` (formats/colour_model.py)
-    shades in linear light (as a camera sees) or the albedo's values as they are. Returns the
-    SequenceInfo."""
+    shades in linear light (as a camera sees) or the albedo's values as they are; `occlusion` holds the
+    room light back where the hand is in its own way (render/occlusion.py), as the fit does by
+    default. Returns the SequenceInfo."""
     model = HandModel.load(mode, "right", dtype=torch.float64)
     betas = np.broadcast_to(np.asarray(0.0 if betas is None else betas, dtype=np.float64), (model.num_betas,)).copy()
     pose = np.broadcast_to(np.asarray(pose, dtype=np.float64), (frames, 16, 3)).copy()
@@ -107,14 +109,15 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
         out = model(torch.as_tensor(betas), torch.as_tensor(pose), torch.as_tensor(global_orient),
                     torch.as_tensor(transl))
         albedo = mottled_albedo()
+        mesh = RenderMesh.from_model_data(model.data, dtype=torch.float64)
         light = Light(torch.tensor(light_position, dtype=torch.float64), torch.tensor(AMBIENT, dtype=torch.float64),
                       shadows=shadows,
                       environment=None if environment is None else torch.as_tensor(environment, dtype=torch.float64),
                       specular=None if specular is None else tuple(torch.tensor(float(v), dtype=torch.float64)
                                                                    for v in specular),
-                      linear=checked(colour_model) == LINEAR)
-        images = render(out.vertices, RenderMesh.from_model_data(model.data, dtype=torch.float64),
-                        torch.as_tensor(K), size, size, outputs=("rgb", "alpha"),
+                      linear=checked(colour_model) == LINEAR,
+                      occlusion=lost_light(out.vertices, mesh.faces, hand_focus(model.data.vertex_parts)) if occlusion else None)
+        images = render(out.vertices, mesh, torch.as_tensor(K), size, size, outputs=("rgb", "alpha"),
                         appearance=Appearance(torch.as_tensor(albedo)), light=light,
                         background=torch.tensor(BACKGROUND, dtype=torch.float64))
     info = seq.SequenceInfo(fps=30.0, width=size, height=size, frame_count=frames, hand_side="right", K=K,
@@ -133,7 +136,7 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
                "shadows": shadows,
                "environment": environment_light.to_description(environment),
                specular_lobe.KEY: specular_lobe.to_description(*(specular or (None, None))),
-               KEY: colour_model}))
+               KEY: colour_model, "occlusion": bool(occlusion)}))
     seq.write_png(folder / seq.GT_ALBEDO_FILE, _to_uint8(albedo.transpose(1, 2, 0)))
     seq.write_sequence_info(folder, info)
     return info

@@ -58,6 +58,7 @@ from ..handmodel.lbs import HandModel, load_model_data
 from ..handmodel.mirror import mirror_axis_angle
 from ..handmodel.poses import NAMED_POSES
 from ..handmodel.subdivision import subdivide_model_data
+from ..render.occlusion import hand_focus, lost_light
 from ..render.renderer import Appearance, Light, RenderMesh, render
 from ..render.shading import vertex_normals
 from .albedo import albedo_error, albedo_truth
@@ -254,16 +255,20 @@ def render_posed(subjects, truth_model, pose, azimuth, elevation, size=SIZE, sha
     return render_framed(subjects, frame, light, shading_normals)
 
 
-def render_framed(subjects, frame: Framing, light, shading_normals=False):
+def render_framed(subjects, frame: Framing, light, shading_normals=False, occlusion=False):
     """[(rgb, alpha) (1, H, W, C)] of each (HandModel, Appearance) in `subjects` placed by `frame`
-    under `light`, over black; with `shading_normals`, (rgb, alpha, shading normal) each."""
+    under `light`, over black; with `shading_normals`, (rgb, alpha, shading normal) each; with
+    `occlusion`, the room light held back where each hand is in its own way (render/occlusion.py)."""
     images = []
     outputs = ("rgb", "alpha") + (("shading_normal",) if shading_normals else ())
     with torch.no_grad():
         for model, appearance in subjects:
             vertices = model(pose=frame.pose, global_orient=frame.global_orient).vertices + frame.shift
-            out = render(vertices, RenderMesh.from_model_data(model.data), frame.K, frame.size, frame.size,
-                         outputs=outputs, appearance=appearance, light=light, background=torch.zeros(3))
+            mesh = RenderMesh.from_model_data(model.data)
+            lit = dataclasses.replace(light, occlusion=lost_light(
+                vertices, mesh.faces, hand_focus(model.data.vertex_parts))) if occlusion else light
+            out = render(vertices, mesh, frame.K, frame.size, frame.size,
+                         outputs=outputs, appearance=appearance, light=lit, background=torch.zeros(3))
             images.append(tuple(out[name] for name in outputs))
     return images
 
@@ -418,7 +423,8 @@ def cycles_scores(sequence, description, avatar_model, appearance, truth_model, 
     for (name, view), frame, (rgb, alpha) in zip(cases, frames, renders):
         light = fitted_light(description, metadata, frame)
         (a_rgb, a_alpha), (t_rgb, t_alpha) = render_framed(
-            [(avatar_model, appearance), (truth_model, truth_appearance)], frame, light)
+            [(avatar_model, appearance), (truth_model, truth_appearance)], frame, light,
+            occlusion=bool(description["light"].get("occlusion", False)))
         cycles_rgb = torch.as_tensor(rgb[None], dtype=a_rgb.dtype)
         cycles_alpha = torch.as_tensor(alpha[None, ..., None], dtype=a_rgb.dtype)
         rows.append({"pose": name, "view": view, **image_scores(a_rgb, a_alpha, cycles_rgb, cycles_alpha)})

@@ -218,14 +218,16 @@ def _observations(problem, shadows, batch_size, size):
     against 0.065, docs/fidelity.md)."""
     avatar, clip = problem.avatar, problem.clip
     appearance = dataclasses.replace(avatar.appearance(), albedo=torch.ones_like(avatar.albedo))
-    light = avatar.light(shadows)
-    environment, specular, linear = light.environment, light.specular, light.linear
-    light = dataclasses.replace(light, linear=False)
     sheen_only = Appearance(torch.zeros_like(avatar.albedo), appearance.normal_map)   # colour = the lobe's share
-    outputs = ("rgb", "uv", "alpha") + (() if environment is None else ("shading_normal",))
     parts = []
     for batch in torch.arange(len(problem.frames), device=avatar.albedo.device).split(batch_size):
         vertices, _ = avatar.posed(batch)
+        light = avatar.light(shadows, batch, vertices)
+        environment, specular, linear = light.environment, light.specular, light.linear
+        light = dataclasses.replace(light, linear=False)
+        occluded = environment is not None and light.occlusion is not None
+        outputs = ("rgb", "uv", "alpha") + (() if environment is None else ("shading_normal",)) \
+            + (("lost_light",) if occluded else ())
         images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=outputs,
                         appearance=appearance, light=dataclasses.replace(light, environment=None, specular=None),
                         antialiased=False)
@@ -239,6 +241,8 @@ def _observations(problem, shadows, batch_size, size):
         shading = base
         if environment is not None:
             basis = environment_basis_values(images["shading_normal"])
+            if occluded:   # the harmonics' light less what the hand keeps from the point (render/occlusion.py)
+                basis = basis - images["lost_light"][..., 1:]
             shading = base + gain * (basis @ environment)
         usable = problem.compared_pixels(batch) & (images["alpha"][..., 0] > 0.5)   # as the photometric term
         drawn = linear_to_srgb(shading) if linear else shading   # an albedo of 1's values in the frame

@@ -27,6 +27,7 @@ from ..formats import environment_light
 from ..formats.colour_model import LINEAR, checked
 from ..formats.specular_lobe import LEVEL_MAX, ROUGHNESS_RANGE
 from ..handmodel.lbs import HandModel
+from ..render.occlusion import hand_focus, lost_light
 from ..render.renderer import Appearance, Light, RenderMesh
 from ..render.shading import vertex_normals
 
@@ -44,13 +45,17 @@ MATERIAL = ("roughness_logit", "specular_logit")   # the skin's specular lobe
 APPEARANCE = TEXTURES + LIGHT + MATERIAL
 # buffers that say which parts of the light and material are in use (saved with the avatar)
 SWITCHES = ("environment_on", "specular_on")
+# a frame's room-light occlusion is measured again once its hand or a joint has turned by this much (radians)
+# or the shape has changed by this much (standard deviations) since it was last measured
+OCCLUSION_POSE_TOLERANCE = 0.1
+OCCLUSION_SHAPE_TOLERANCE = 0.05
 
 
 class Avatar(torch.nn.Module):
     """Parameters of one fit. `model` is the subdivided HandModel of the clip's mode and side."""
 
     def __init__(self, model: HandModel, initial, frames, texture_size=512, light_position=None, coarse_model=None,
-                 displacement_parents=None, colour_model=LINEAR):
+                 displacement_parents=None, colour_model=LINEAR, occlusion=False):
         super().__init__()
         self.model = model
         # how the albedo and light make the frames' values (formats/colour_model.py; FitSettings.colour_model)
@@ -90,6 +95,10 @@ class Avatar(torch.nn.Module):
         if model.mode == "hand":
             self.pose_mask[0] = 0
         self.register_buffer("frame_numbers", torch.as_tensor(np.asarray(frames), device=device), persistent=False)
+        # the room light's occlusion (FitSettings.occlusion): per frame, measured at a pose and kept (not saved)
+        self.occlusion = bool(occlusion)
+        self._lost, self._lost_pose, self._lost_betas = None, None, None
+        self._occlusion_focus = hand_focus(model.data.vertex_parts, device)
         self.mesh = RenderMesh.from_model_data(model.data, device=device, dtype=dtype)
         if coarse_model is not None:
             self.coarse_mesh = RenderMesh.from_model_data(coarse_model.data, device=device, dtype=dtype)
@@ -123,10 +132,36 @@ class Avatar(torch.nn.Module):
         balance did to them."""
         return torch.exp(self.exposure[batch])[:, None, None, :]
 
-    def light(self, shadows=False):
+    def light(self, shadows=False, batch=None, vertices=None):
+        """The light of the frames `batch` posed as `vertices` (B, V, 3) (the subdivided mesh), with
+        their room-light occlusion when it is on; without them, a light with none."""
+        occlusion = None if batch is None or not self.occlusion else self.room_occlusion(batch, vertices)
         return Light(self.light_position, self.ambient, shadows=shadows,
                      environment=self.environment if bool(self.environment_on) else None, specular=self.specular(),
-                     linear=self.linear_light)
+                     linear=self.linear_light, occlusion=occlusion)
+
+    @torch.no_grad()
+    def room_occlusion(self, batch, vertices):
+        """(B, V, 9) the room light each vertex of the frames `batch`, posed as `vertices`, does not
+        get for the hand in the way (render/occlusion.py). Measured once per frame and kept until
+        its pose or the shape moves by OCCLUSION_POSE_TOLERANCE or OCCLUSION_SHAPE_TOLERANCE (the
+        visibility has no gradient: a fixed factor of the pose it was measured at)."""
+        batch = torch.as_tensor(batch, dtype=torch.long, device=vertices.device).reshape(-1)
+        pose = torch.cat([self.global_orient[batch], (self.pose[batch] * self.pose_mask).flatten(1)], dim=1)
+        if self._lost is None or self._lost.shape[1] != vertices.shape[1] or self._lost.device != vertices.device:
+            frames = len(self.global_orient)
+            self._lost = vertices.new_zeros(frames, vertices.shape[1], 9)
+            self._lost_pose = torch.full((frames, pose.shape[1]), float("inf"), dtype=pose.dtype, device=pose.device)
+            self._lost_betas = self.betas.detach().clone()
+        if (self.betas - self._lost_betas).abs().max() > OCCLUSION_SHAPE_TOLERANCE:
+            self._lost_pose.fill_(float("inf"))
+            self._lost_betas = self.betas.detach().clone()
+        stale = (pose - self._lost_pose[batch]).abs().amax(1) > OCCLUSION_POSE_TOLERANCE
+        if stale.any():
+            self._lost[batch[stale]] = lost_light(vertices[stale].detach(), self.mesh.faces,
+                                                  self._occlusion_focus).to(self._lost.dtype)
+            self._lost_pose[batch[stale]] = pose[stale]
+        return self._lost[batch]
 
     @torch.no_grad()
     def switch_environment(self, on: bool):

@@ -23,7 +23,8 @@ class BatchData:
         self.images = render(self.vertices, avatar.coarse_mesh if stage.coarse else avatar.mesh, clip.K[frames],
                              clip.height, clip.width, outputs=("alpha", "rgb") if shaded else ("alpha",),
                              appearance=avatar.appearance() if shaded else None,
-                             light=avatar.light(shadows) if shaded else None,
+                             light=avatar.light(shadows, None if stage.coarse else frames, self.vertices)
+                             if shaded else None,
                              background=torch.zeros(3, dtype=self.vertices.dtype, device=self.vertices.device))
         self.masks = clip.masks[frames]
 

@@ -36,7 +36,7 @@ def render_all(avatar, clip, shadows, exposure=False, batch_size=8, frames=None)
         vertices, _ = avatar.posed(batch)
         plates = clip.backgrounds[batch].to(vertices.dtype)
         images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=("rgb", "alpha"),
-                        appearance=avatar.appearance(), light=avatar.light(shadows),
+                        appearance=avatar.appearance(), light=avatar.light(shadows, batch, vertices),
                         background=torch.zeros(3, dtype=vertices.dtype, device=vertices.device) if exposure else plates)
         if exposure:   # over black, the colour is alpha times the hand's: gain it, then composite
             images["rgb"] = images["rgb"] * avatar.exposure_gain(batch) + (1 - images["alpha"]) * plates
@@ -163,7 +163,7 @@ def _write_avatar(out, problem, state, shadows):
         "light": {"position": avatar.light_position.detach().cpu().tolist(), "ambient": avatar.ambient.item(),
                   "shadows": shadows, "environment": environment_light.to_description(avatar.light().environment),
                   specular_lobe.KEY: specular_lobe.to_description(*(avatar.specular() or (None, None))),
-                  colour_model.KEY: settings.colour_model},
+                  colour_model.KEY: settings.colour_model, "occlusion": settings.occlusion == "on"},
         "camera": camera_description(clip),
         "footage": {"sequence": str(problem.sequence.resolve()), "fps": clip.info.fps,
                     "frame_count": clip.info.frame_count, "width": clip.info.width, "height": clip.info.height},

@@ -65,6 +65,9 @@ class FitSettings:
     # and the Blender bind shading as the fit does (34.2 dB against 21.1 where the room light is realisable;
     # docs/fidelity.md, "Shading in linear light")
     colour_model: str = "linear"
+    # the room light (ambient and environment) held back where the hand itself stands in its way, as Cycles and
+    # a real room do (render/occlusion.py): "on" | "off" (every point sees the whole room, HARP's light)
+    occlusion: str = "on"
     # frames kept out of the fit and scored as it runs: the best state is written (validation.py). Off until it
     # is shown to help: with `fast` on the demo clip (3 seeds) it left held-out PSNR level (27.76 dB both), joints
     # 0.11 mm worse, 10% more time; on the sun clip it went back to an earlier state whose surface was 36% worse
@@ -84,6 +87,8 @@ class FitSettings:
 
     def __post_init__(self):
         colour_model.checked(self.colour_model)
+        if self.occlusion not in ("on", "off"):
+            raise ValueError(f"occlusion must be 'on' or 'off', got {self.occlusion!r}")
         if not 0.0 < self.final_rate_fraction <= 1.0:
             raise ValueError(f"final_rate_fraction must be in (0, 1] (1: constant rates), "
                              f"got {self.final_rate_fraction}")
@@ -119,6 +124,7 @@ class FitSettings:
         values.setdefault("final_rate_fraction", 1.0)    # saved before the learning rates fell
         values.setdefault("plateau_tolerance", 0.0)      # saved before the rates halved on a plateau
         values.setdefault("colour_model", "display")     # saved before the colour model was a choice: display
+        values.setdefault("occlusion", "off")             # saved before the room light's occlusion
         if "steps" in values:
             values["steps"] = tuple(values["steps"])
         return cls(**values)

@@ -21,16 +21,16 @@ def specular_share(problem, shadows) -> dict:
     what the lobe adds to the frames' values (the render less the render without it), so it
     reads the same in either colour model."""
     avatar, clip = problem.avatar, problem.clip
-    light = avatar.light(shadows)
-    if light.specular is None:
+    if avatar.light().specular is None:
         return {"mean": 0.0, "highlight": 0.0}
     count = len(problem.frames)
     chosen = torch.linspace(0, count - 1, min(FRAMES, count), device=avatar.albedo.device).round().long().unique()
     appearance = avatar.appearance()
-    matte = dataclasses.replace(light, specular=None)
     sheens, colours = [], []
     for batch in chosen.split(BATCH):
         vertices, _ = avatar.posed(batch)
+        light = avatar.light(shadows, batch, vertices)
+        matte = dataclasses.replace(light, specular=None)
         images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=("rgb", "alpha"),
                         appearance=appearance, light=light, antialiased=False)
         sheen = images["rgb"] - render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width,

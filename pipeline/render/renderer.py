@@ -16,6 +16,7 @@ import torch
 from ..formats.colour_model import linear_to_srgb, srgb_to_linear
 from . import fused as fused_ops
 from . import interpolate as reference_interpolate
+from . import occlusion as room_occlusion
 from . import rasterize as reference_rasterize
 from . import shading as reference_shading
 from . import shadow_map as reference_shadow_map
@@ -24,7 +25,7 @@ from .antialias import antialias as reference_antialias
 from .interpolate import to_image
 from .texture import sample_texture
 
-OUTPUTS = ("alpha", "rgb", "depth", "normal", "albedo", "uv", "shading_normal")
+OUTPUTS = ("alpha", "rgb", "depth", "normal", "albedo", "uv", "shading_normal", "lost_light")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,6 +100,9 @@ class Light:
     # shade in linear light (formats/colour_model.py "linear"): the albedo decoded from sRGB, the lit colour
     # encoded back; False: the albedo's values shaded as they are ("display")
     linear: bool = False
+    # (B, V, 9) per vertex, the room light (ambient and environment) the hand's own surfaces keep
+    # from it (render/occlusion.py lost_light); None: every point sees the whole room
+    occlusion: torch.Tensor | None = None
 
 
 def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appearance=None,
@@ -109,15 +113,18 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
     Returns {name: (B, H, W, C)}: alpha (C=1), rgb (3, lit colour over `background`, a (3,)
     tensor or (B, H, W, 3) image, default black), depth (1, +inf where empty), normal (3,
     camera frame), albedo (3, unlit), uv (2, the texture coordinates seen, v up), shading_normal
-    (3, the normal the light sees: the normal map's, camera frame; only with rgb). alpha and rgb
+    (3, the normal the light sees: the normal map's, camera frame; only with rgb), lost_light (9,
+    the light's `occlusion` interpolated; only with rgb and an occlusion). alpha and rgb
     carry silhouette gradients when antialiased. fused=False takes the reference primitives
     (the same images and gradients, slower: fused.py).
     """
     unknown = set(outputs) - set(OUTPUTS)
     if unknown:
         raise ValueError(f"unknown render outputs {sorted(unknown)}; choose from {OUTPUTS}")
-    if "shading_normal" in outputs and "rgb" not in outputs:
-        raise ValueError("the shading_normal output comes with rgb only")
+    if {"shading_normal", "lost_light"} & set(outputs) and "rgb" not in outputs:
+        raise ValueError("the shading_normal and lost_light outputs come with rgb only")
+    if "lost_light" in outputs and (light is None or light.occlusion is None):
+        raise ValueError("the lost_light output needs a light with an occlusion")
     ops = FUSED if fused else REFERENCE
     faces = mesh.faces
     rast = ops.rasterize(points.detach(), faces, K, height, width)
@@ -158,9 +165,14 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
             normal = ops.perturbed_normal(smooth_normals, tangent, handedness[frags.face], value)
         else:
             normal = torch.nn.functional.normalize(smooth_normals, dim=-1, eps=1e-12)
-        colour = _lit_colour(ops, points, faces, frags, position, albedo, normal, light)
+        lost = None
+        if light.occlusion is not None:
+            lost, = ops.interpolate_many([light.occlusion.to(points.dtype)], frags, faces)
+        colour = _lit_colour(ops, points, faces, frags, position, albedo, normal, light, lost)
         if "shading_normal" in outputs:
             result["shading_normal"] = to_image(normal, frags)
+        if "lost_light" in outputs:
+            result["lost_light"] = to_image(lost, frags)
         layers.append(("rgb", colour, _background(background, points, height, width)))
     if "alpha" in outputs:
         ones = torch.ones(len(frags.pixel), 1, dtype=points.dtype, device=points.device)
@@ -174,8 +186,9 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
     return result
 
 
-def _lit_colour(ops, points, faces, frags, position, albedo, normal, light):
-    """The colour of each fragment: `albedo` (linear already in linear light) lit, encoded to sRGB
+def _lit_colour(ops, points, faces, frags, position, albedo, normal, light, lost=None):
+    """The colour of each fragment: `albedo` (linear already in linear light) lit, less the room
+    light the hand keeps from it (`lost`, (N, 9) interpolated lost_light, or None), encoded to sRGB
     in linear light."""
     light_position = light.position.to(points.dtype)
     if light_position.dim() == 2:
@@ -187,6 +200,8 @@ def _lit_colour(ops, points, faces, frags, position, albedo, normal, light):
     colour = ops.lit_colour(albedo, normal, position, light_position, light.ambient, visibility)
     if light.environment is not None:
         colour = colour + albedo * reference_shading.environment_shading(normal, light.environment)
+    if lost is not None:
+        colour = colour - albedo * room_occlusion.lost_shading(lost, light.ambient, light.environment)
     if light.specular is not None:
         to_light = torch.nn.functional.normalize(light_position - position, dim=-1, eps=1e-12)
         to_camera = torch.nn.functional.normalize(-position, dim=-1, eps=1e-12)   # the camera is the origin
