@@ -48,7 +48,7 @@ SWITCHES = ("environment_on", "specular_on")
 # a frame's room-light occlusion is measured again once its hand or a joint has turned by this much (radians)
 # or the shape has changed by this much (standard deviations) since it was last measured
 OCCLUSION_POSE_TOLERANCE = 0.1
-OCCLUSION_SHAPE_TOLERANCE = 0.05
+OCCLUSION_SHAPE_TOLERANCE = 0.5
 
 
 class Avatar(torch.nn.Module):
@@ -139,6 +139,15 @@ class Avatar(torch.nn.Module):
         return Light(self.light_position, self.ambient, shadows=shadows,
                      environment=self.environment if bool(self.environment_on) else None, specular=self.specular(),
                      linear=self.linear_light, occlusion=occlusion)
+
+    @torch.no_grad()
+    def measure_occlusion(self, batch_size=8):
+        """Measure the room light's occlusion of every frame whose pose has moved past the
+        tolerance since it was last measured (room_occlusion); nothing while it is off."""
+        if not self.occlusion:
+            return
+        for batch in torch.arange(len(self.global_orient), device=self.pose.device).split(batch_size):
+            self.room_occlusion(batch, self.posed(batch)[0])
 
     @torch.no_grad()
     def room_occlusion(self, batch, vertices):
