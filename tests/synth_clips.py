@@ -38,7 +38,8 @@ def known_scene(folder):
     """Everything an exact clip was drawn with but its light (float64 torch), for the tests that
     recover one part of the light from it: {vertices (F, V, 3), mesh, K, height, width, frames
     (F, H, W, 3) in [0, 1], masks (F, H, W, 1) bool, appearance (the true albedo), linear (the
-    clip was shaded in linear light: Light.linear)}."""
+    clip was shaded in linear light: Light.linear), occlusion (the room light's, as the clip was
+    drawn with it: Light.occlusion, or None)}."""
     import cv2
     import numpy as np
     import torch
@@ -46,6 +47,7 @@ def known_scene(folder):
     from pipeline.evaluate.exact_clips import mottled_albedo
     from pipeline.formats import colour_model
     from pipeline.handmodel.lbs import HandModel
+    from pipeline.render.occlusion import hand_focus, lost_light
     from pipeline.render.renderer import Appearance, RenderMesh
 
     info = seq.read_sequence_info(folder)
@@ -56,8 +58,11 @@ def known_scene(folder):
                                           dtype=torch.float64) / 255 for i in count])
     masks = torch.stack([torch.as_tensor(cv2.imread(str(seq.mask_path(folder, info, i)), cv2.IMREAD_GRAYSCALE) > 127)
                          for i in count])[..., None]
-    return {"vertices": torch.as_tensor(gt.vertices, dtype=torch.float64),
-            "mesh": RenderMesh.from_model_data(model.data, dtype=torch.float64),
+    vertices = torch.as_tensor(gt.vertices, dtype=torch.float64)
+    mesh = RenderMesh.from_model_data(model.data, dtype=torch.float64)
+    occlusion = lost_light(vertices, mesh.faces, hand_focus(model.data.vertex_parts)) \
+        if gt.light.get("occlusion", False) else None
+    return {"vertices": vertices, "mesh": mesh, "occlusion": occlusion,
             "K": torch.as_tensor(np.asarray(info.K), dtype=torch.float64), "height": info.height, "width": info.width,
             "frames": frames, "masks": masks, "appearance": Appearance(torch.as_tensor(mottled_albedo())),
             "linear": colour_model.is_linear(gt.light)}

@@ -8,6 +8,7 @@ import torch
 from pipeline.handmodel.lbs import HandModel
 from pipeline.handmodel.poses import NAMED_POSES
 from pipeline.render import fused, rasterize, shading
+from pipeline.render.occlusion import lost_light
 from pipeline.render.renderer import OUTPUTS, Appearance, Light, RenderMesh, render
 from render_meshes import intrinsics
 
@@ -44,7 +45,8 @@ def _render_with_gradients(scene, fused_path, light_per_frame=False):
     background = torch.tensor([0.1, 0.2, 0.3], dtype=torch.float64)
     images = render(leaves["points"], mesh, K, SIZE, SIZE, outputs=OUTPUTS,
                     appearance=Appearance(leaves["albedo"], leaves["normal_map"]),
-                    light=Light(leaves["light"], leaves["ambient"], shadows=True, shadow_resolution=64),
+                    light=Light(leaves["light"], leaves["ambient"], shadows=True, shadow_resolution=64,
+                                occlusion=lost_light(points, mesh.faces)),
                     background=background, fused=fused_path)
     generator = torch.Generator().manual_seed(5)
     loss = sum((torch.nan_to_num(image, posinf=0.0) * torch.rand(image.shape, generator=generator,

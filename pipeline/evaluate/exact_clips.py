@@ -75,7 +75,7 @@ def posed_box(model, pose, betas):
 
 def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=(0.0, 0.0), azimuth=0.0, betas=None,
                turn_degrees=TURN_DEGREES, mode="hand", environment=None, specular=None, shadows=False,
-               light_position=LIGHT_POSITION, colour_model=LINEAR, occlusion=True):
+               light_position=LIGHT_POSITION, colour_model=LINEAR, occlusion=False):
     """Render `frames` frames of the hand in `pose` ((16, 3) or (F, 16, 3) axis-angle, radians,
     right hand) into the sequence folder `folder` with its exact ground truth (gt.npz,
     gt_albedo.png). The hand (its bounding box in frame 0's pose, centred) is 80% of the image
@@ -88,8 +88,8 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
     gives the skin a specular lobe (formats/specular_lobe.py); `shadows` draws the point light's
     self-shadows (at `light_position`, camera frame, metres); `colour_model` (formats/colour_model.py)
     shades in linear light (as a camera sees) or the albedo's values as they are; `occlusion` holds the
-    room light back where the hand is in its own way (render/occlusion.py), as the fit does by
-    default. Returns the SequenceInfo."""
+    room light back where the hand is in its own way (render/occlusion.py; FitSettings.occlusion).
+    Returns the SequenceInfo."""
     model = HandModel.load(mode, "right", dtype=torch.float64)
     betas = np.broadcast_to(np.asarray(0.0 if betas is None else betas, dtype=np.float64), (model.num_betas,)).copy()
     pose = np.broadcast_to(np.asarray(pose, dtype=np.float64), (frames, 16, 3)).copy()

@@ -141,13 +141,25 @@ class Avatar(torch.nn.Module):
                      linear=self.linear_light, occlusion=occlusion)
 
     @torch.no_grad()
-    def measure_occlusion(self, batch_size=8):
+    def measure_occlusion(self, batch_size=8, exact=False):
         """Measure the room light's occlusion of every frame whose pose has moved past the
-        tolerance since it was last measured (room_occlusion); nothing while it is off."""
+        tolerance since it was last measured (room_occlusion), or of every frame at its pose now
+        (`exact`: what the outputs are made with, so that a resumed fit makes the same ones);
+        nothing while it is off."""
         if not self.occlusion:
             return
+        if exact and self._lost_pose is not None:
+            self._lost_pose.fill_(float("inf"))
         for batch in torch.arange(len(self.global_orient), device=self.pose.device).split(batch_size):
             self.room_occlusion(batch, self.posed(batch)[0])
+
+    def occlusion_state(self):
+        """What room_occlusion holds (to put back with restore_occlusion_state): a calibration's
+        throwaway steps must leave the fit as they found it."""
+        return tuple(None if value is None else value.clone() for value in (self._lost, self._lost_pose, self._lost_betas))
+
+    def restore_occlusion_state(self, state):
+        self._lost, self._lost_pose, self._lost_betas = state
 
     @torch.no_grad()
     def room_occlusion(self, batch, vertices):

@@ -69,6 +69,7 @@ class FitState:
     best: dict | None = None            # the best check's psnr, stage and step (its avatar: Checkpoint.best_avatar)
     environment: dict | None = None     # `auto` environment light, once decided: on, relative_strength
     specular: dict | None = None        # `auto` specular lobe, once decided: on, share, highlight, roughness, level
+    restarted: dict | None = None       # lost_frames.restart_lost_frames' figures, once it has run (after the alignment)
 
     @classmethod
     def fresh(cls, schedule: Schedule, shadows="auto"):

@@ -131,6 +131,7 @@ def calibrate(problem, schedule: Schedule, kinds) -> StepCosts:
         problem.avatar.measure_occlusion()
         occlusion_seconds = time.perf_counter() - start
     saved = copy.deepcopy(problem.avatar.state_dict())
+    saved_occlusion = problem.avatar.occlusion_state()
     by_kind = {stage.kind: stage for stage in schedule}
     seconds = {}
     try:
@@ -148,6 +149,7 @@ def calibrate(problem, schedule: Schedule, kinds) -> StepCosts:
             seconds[kind] = statistics.fmean(durations)
     finally:
         problem.avatar.load_state_dict(saved)
+        problem.avatar.restore_occlusion_state(saved_occlusion)
         for parameter in problem.avatar.parameters():
             parameter.grad = None
     fallback = fallback_costs(problem.settings, len(problem.frames)).seconds

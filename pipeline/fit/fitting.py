@@ -26,10 +26,11 @@ from .checkpoint import CHECKPOINT_FILE, CHECKPOINT_VERSION, Checkpoint, FitStat
 from .budget import BudgetKeeper
 from .estimate import FitEstimate, active_stages, measure_step_costs
 from .frames import held_out_frames, select_frames, validation_frames
+from .lost_frames import LOST_IOU, anchor_restarted, restart_lost_frames
 from .outputs import masked_l1, write_outputs
 from .problem import FitError, FitProblem, build_problem
 from .progress import Progress
-from .schedule import SHADOWS_DECIDED_IN, step_kind
+from .schedule import SHADOWS_DECIDED_IN, StageKind, step_kind
 from .settings import settings_for
 from .specular_share import specular_share
 from .stage_run import StageRun
@@ -145,6 +146,8 @@ def _run(setup: FitSetup, job, out, observers, started):
                      state.measure_seconds)
     estimate = FitEstimate(problem, state, costs, active, budget, validator)
     clock = _FitClock(state)      # after the calibration: measuring the step costs is no stage's time
+    if state.restarted:           # a resumed fit: the restarted frames' anchors where they were moved
+        anchor_restarted(problem, state.restarted)
     with Progress(job.progress, estimate.steps_left) as reporter, _interrupt_flag() as interrupted:
         reporter.log(_opening_line(problem, job.preset, estimate))
         clock.observe(observers, "start", problem)
@@ -153,6 +156,8 @@ def _run(setup: FitSetup, job, out, observers, started):
             reporter.enter_stage(*_stage_number(state.schedule, index))
             if validator is not None and optimiser_state is None:   # a stage from its start
                 validator.new_stage()
+            if optimiser_state is None and run.stage.appearance:    # shaded: the room light's occlusion measured
+                problem.avatar.measure_occlusion(exact=True)        # at its start (so a resumed fit does the same)
             optimiser_state = None
             while run.has_work and not run.finished:
                 if interrupted.is_set():
@@ -173,11 +178,26 @@ def _run(setup: FitSetup, job, out, observers, started):
                 clock.observe(observers, "step", problem)
                 saver.save_now_and_then(state, run, generator)
             clock.charge()
+            if state.schedule[index].kind is StageKind.ALIGN and state.restarted is None:
+                _restart_lost_frames(problem, state, reporter)
             state.stage, state.step, state.order = index + 1, 0, []
             saver.save(state, None, generator)
         _after_the_stages(problem, state, reporter, lambda: saver.save(state, None, generator), validator)
         clock.observe(observers, "end", problem)
     return write_outputs(out, problem, state, held_out, estimate=estimate.report(), validation_frames=validation)
+
+
+def _restart_lost_frames(problem, state, reporter):
+    """After the alignment: the frames it left off their silhouettes started again from their
+    neighbours (lost_frames.py), said in one line where there were any."""
+    state.restarted = restart_lost_frames(problem)
+    tried, restarted = state.restarted["tried"], state.restarted["frames"]
+    if tried:
+        gains = ", ".join(f"{frame} ({before:.2f} -> {after:.2f})" for frame, before, after in
+                          zip(restarted, state.restarted["iou_before"], state.restarted["iou_after"]))
+        reporter.log(f"frames the alignment left off their silhouettes (IoU under {LOST_IOU}): {tried}; "
+                     + (f"started again from their neighbours' poses: {gains}" if restarted
+                        else "their neighbours' poses cover them no better: kept"))
 
 
 def _stage_number(schedule, index):
@@ -211,6 +231,7 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
             reporter.log(f"validation: the avatar of {best.stage} step {best.step} ({best.psnr:.2f} dB) is kept, "
                          f"better than the last check's {state.validation[-1]['psnr_mean']:.2f} dB")
             save()
+    problem.avatar.measure_occlusion(exact=True)   # at the final poses, in a resumed fit too
     solving = problem.settings.solve_albedo and not problem.known_appearance
     if state.albedo_solve is None and solving:
         state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on)

@@ -1,0 +1,90 @@
+"""Frames the alignment left off their silhouette, started again from their neighbours.
+
+The initial keypoints can put a frame's hand the wrong way round: seen edge-on, palm and back
+give the detector the same picture, and it may flip the hand about its long axis. The alignment
+then holds the flipped hand, pulled there by its keypoint anchor, and the silhouette term alone
+cannot turn it back over (the phone-like clip's frame 8: IoU 0.56 at the end of every fit while
+its neighbours reached 0.91-0.97). After the alignment, each fitted frame whose silhouette IoU is
+below LOST_IOU, and at least LOST_MARGIN below the clip's median, gets the pose its nearest
+well-aligned neighbours interpolate (pose_interpolation.py); where that covers its mask better
+by at least GAIN, it is kept, and the frame's keypoint anchor moves to the new pose's keypoints
+(else the anchor would pull the hand back over). The later stages refine it as any other frame.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from .. import metrics
+from ..render.renderer import render
+from .pose_interpolation import interpolated_poses
+
+LOST_IOU = 0.8          # a frame below this silhouette IoU after the alignment...
+LOST_MARGIN = 0.1       # ...and this far below the clip's median is taken as lost
+GAIN = 0.05             # the neighbours' pose is kept where it raises the IoU by at least this
+POSE = ("global_orient", "transl", "pose")
+
+
+@torch.no_grad()
+def alignment_ious(problem, frames=None, batch_size=8) -> torch.Tensor:
+    """(F,) the silhouette IoU of the alignment's mesh (the unsubdivided model) against each
+    fitted frame's mask, or of `frames` (indices into the fitted frames)."""
+    avatar, clip = problem.avatar, problem.clip
+    chosen = torch.arange(len(problem.frames), device=clip.masks.device) if frames is None else \
+        torch.as_tensor(frames, dtype=torch.long, device=clip.masks.device)
+    ious = []
+    for batch in chosen.split(batch_size):
+        vertices, _ = avatar.posed_coarse(batch)
+        alpha = render(vertices, avatar.coarse_mesh, clip.K[batch], clip.height, clip.width, outputs=("alpha",),
+                       antialiased=False)["alpha"]
+        ious.append(metrics.silhouette_iou(alpha, clip.masks[batch]))
+    return torch.cat(ious) if ious else torch.zeros(0, dtype=torch.float64)
+
+
+@torch.no_grad()
+def restart_lost_frames(problem) -> dict:
+    """Start the lost frames (module docstring) again from their neighbours, in place; returns
+    {"frames": the sequence frames restarted, "iou_before", "iou_after", "tried": the sequence
+    frames found lost}."""
+    avatar = problem.avatar
+    ious = alignment_ious(problem).cpu().numpy()
+    if len(ious) < 3:
+        return {"frames": [], "iou_before": [], "iou_after": [], "tried": []}
+    lost = np.flatnonzero((ious < LOST_IOU) & (ious < np.median(ious) - LOST_MARGIN))
+    kept = np.setdiff1d(np.arange(len(ious)), lost)
+    result = {"frames": [], "iou_before": [], "iou_after": [],
+              "tried": [int(problem.frames[i]) for i in lost]}
+    if len(lost) == 0 or len(kept) == 0:
+        return result
+    sequence_frames = np.asarray(problem.frames)
+    good = {name: getattr(avatar, name)[torch.as_tensor(kept, device=avatar.pose.device)] for name in POSE}
+    start = interpolated_poses(good, sequence_frames[kept], sequence_frames[lost])
+    index = torch.as_tensor(lost, device=avatar.pose.device)
+    before = {name: getattr(avatar, name)[index].clone() for name in POSE}
+    for name in POSE:
+        getattr(avatar, name)[index] = start[name].to(getattr(avatar, name).dtype)
+    after = alignment_ious(problem, lost).cpu().numpy()
+    better = after >= ious[lost] + GAIN
+    for name in POSE:       # where the neighbours' pose is no better, the frame keeps its own
+        parameter = getattr(avatar, name)
+        parameter[index[~torch.as_tensor(better)]] = before[name][~torch.as_tensor(better)]
+    restarted = index[torch.as_tensor(better)]
+    if len(restarted):
+        _, keypoints = avatar.posed(restarted)
+        problem.anchor_keypoints[restarted] = keypoints[:, :21].to(problem.anchor_keypoints.dtype)
+    result.update(frames=[int(sequence_frames[i]) for i in lost[better]],
+                  iou_before=[round(float(v), 4) for v in ious[lost][better]],
+                  iou_after=[round(float(v), 4) for v in after[better]])
+    return result
+
+
+@torch.no_grad()
+def anchor_restarted(problem, restarted: dict):
+    """On a resumed fit: the anchor of the frames restart_lost_frames restarted, at their current
+    keypoints (the problem was built again, its anchors at the initial keypoints)."""
+    frames = [int(np.flatnonzero(np.asarray(problem.frames) == frame)[0]) for frame in restarted.get("frames", [])
+              if frame in set(np.asarray(problem.frames).tolist())]
+    if frames:
+        index = torch.as_tensor(frames, device=problem.avatar.pose.device)
+        _, keypoints = problem.avatar.posed(index)
+        problem.anchor_keypoints[index] = keypoints[:, :21].to(problem.anchor_keypoints.dtype)

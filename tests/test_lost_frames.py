@@ -1,0 +1,82 @@
+"""Frames the alignment left off their silhouettes, started again from their neighbours
+(fit/lost_frames.py): a frame turned over about the hand's long axis, as a detector flips an
+edge-on hand, is found, put back near its true pose, and its keypoint anchor follows it."""
+import numpy as np
+import pytest
+import torch
+
+from pipeline.evaluate.exact_clips import write_clip
+from pipeline.fit.checkpoint import FitState
+from pipeline.fit.lost_frames import alignment_ious, restart_lost_frames
+from pipeline.fit.problem import build_problem
+from pipeline.fit.settings import settings_for
+from pipeline.formats import sequence_folder as seq
+from pipeline.handmodel.rotations import axis_angle_to_matrix, matrix_to_axis_angle
+from pipeline.init import initialise_sequence
+from synth.motions import OPEN
+
+FRAMES, SIZE, FLIPPED = 7, 96, 3
+
+
+@pytest.fixture(scope="module")
+def problem(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("lost") / "clip"
+    write_clip(folder, OPEN, frames=FRAMES, size=SIZE, turn_degrees=8, occlusion=False)
+    initialise_sequence(folder, "gt-noise", noise_degrees=0.0, noise_translation_m=0.0, log=lambda *a: None)
+    settings = settings_for("fast", FRAMES, resolution=SIZE, texture_size=32)
+    return build_problem(folder, settings, np.arange(FRAMES), "cpu"), folder
+
+
+def turned_over(problem, frame, degrees=150.0):
+    """The hand of `frame` turned by `degrees` about its own long axis (the line through the wrist
+    and the middle finger's knuckle): the flip an edge-on view invites."""
+    avatar = problem.avatar
+    with torch.no_grad():
+        _, keypoints = avatar.posed(torch.tensor([frame]))
+        wrist, knuckle = keypoints[0, 0].clone(), keypoints[0, 9]
+        turn = axis_angle_to_matrix((torch.nn.functional.normalize(knuckle - wrist, dim=0) * np.radians(degrees))[None])
+        orient = axis_angle_to_matrix(avatar.global_orient[frame][None])
+        avatar.global_orient[frame] = matrix_to_axis_angle(turn @ orient)[0]
+        _, moved = avatar.posed(torch.tensor([frame]))
+        avatar.transl[frame] += wrist - moved[0, 0]      # turned about the wrist
+
+
+def test_a_frame_turned_over_is_found_and_started_again_near_its_true_pose(problem):
+    problem, folder = problem
+    avatar = problem.avatar
+    truth = seq.read_ground_truth(folder / seq.GT_FILE)
+    start = alignment_ious(problem).numpy()
+    assert start.min() > 0.9                                         # the gt-noise start covers every mask
+    turned_over(problem, FLIPPED)
+    anchor_before = problem.anchor_keypoints.clone()
+    ious = alignment_ious(problem).numpy()
+    assert ious[FLIPPED] < 0.75 and np.delete(ious, FLIPPED).min() > 0.9
+    untouched = {name: getattr(avatar, name).detach().clone() for name in ("global_orient", "transl", "pose")}
+    found = restart_lost_frames(problem)
+    assert found["tried"] == [FLIPPED] and found["frames"] == [FLIPPED]
+    assert found["iou_after"][0] > 0.9 > ious[FLIPPED] + 0.1
+    # near the true pose: its orientation within a few degrees of the truth's
+    orient = axis_angle_to_matrix(avatar.global_orient[FLIPPED].detach().double()[None])[0]
+    true_orient = axis_angle_to_matrix(torch.as_tensor(truth.global_orient[FLIPPED])[None])[0]
+    angle = torch.rad2deg(torch.arccos(((orient.T @ true_orient).trace() - 1).clamp(-2, 2) / 2))
+    assert angle < 5.0
+    # every other frame as it was; the turned frame's anchor follows it, the others' stay
+    others = [i for i in range(FRAMES) if i != FLIPPED]
+    for name, value in untouched.items():
+        assert torch.equal(getattr(avatar, name)[others], value[others])
+    assert torch.equal(problem.anchor_keypoints[others], anchor_before[others])
+    _, keypoints = avatar.posed(torch.tensor([FLIPPED]))
+    torch.testing.assert_close(problem.anchor_keypoints[FLIPPED], keypoints[0, :21].detach())
+
+
+def test_frames_that_cover_their_masks_are_left_alone(problem):
+    problem, _ = problem
+    found = restart_lost_frames(problem)     # after the test above every frame covers its mask
+    assert found["tried"] == [] and found["frames"] == []
+
+
+def test_a_state_from_before_the_restart_reads():
+    state = FitState.fresh(settings_for("fast", 4).schedule())
+    values = state.to_dict()
+    del values["restarted"]
+    assert FitState.from_dict(values).restarted is None
