@@ -34,6 +34,8 @@ class BatchWorkers:
         parameters.update((name, getattr(problem.avatar, name)) for name in SWITCHES)   # the light's switches too
         for parameter in parameters.values():
             parameter.data.share_memory_()
+        # the keypoint anchor too: a frame started again from its neighbours moves its anchor (lost_frames.py)
+        parameters["anchor_keypoints"] = problem.anchor_keypoints.share_memory_()
         context = multiprocessing.get_context("spawn")
         self.connections, self.processes = [], []
         for _ in range(count):
@@ -99,7 +101,9 @@ def _serve(connection, recipe, parameters):
         problem = build_problem(**recipe)
         own = dict(problem.avatar.named_parameters())
         for name, shared in parameters.items():
-            if name in own:
+            if name == "anchor_keypoints":
+                problem.anchor_keypoints = shared
+            elif name in own:
                 own[name].data = shared
             else:   # a switch (a buffer)
                 setattr(problem.avatar, name, shared)
