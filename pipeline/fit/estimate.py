@@ -39,6 +39,9 @@ RECENT_STEPS = 15            # a stage's rate: the median of this many of its la
 OWN_RATE_AFTER = 4           # ...once it has taken this many
 SPEED_PRIOR_SECONDS = 20.0   # the machine's observed speed counts once this much has been timed...
 SPEED_MEMORY_SECONDS = 60.0  # ...and follows a change (another process starting) over about this long
+# a fit with the room light's occlusion measures every frame's about this many times: at the start of the two
+# shaded stages, at the end, and as poses move (the phone-like clip's `fast` fit: 120 measurements of 24 frames)
+OCCLUSION_MEASUREMENTS = 5
 AFTER_STAGES_FACTOR = 6.5    # albedo solve + fill + outputs: this many appearance steps per batch of frames
 #                              (measured on the 150-frame clip with the fused renderer: 5.7 on `fast`, 7.3-8.5 on `full`)
 
@@ -122,9 +125,9 @@ def calibrate(problem, schedule: Schedule, kinds) -> StepCosts:
     step runs slower: a new optimiser's state, new buffer sizes; one warm-up shared by all kinds
     left the measured costs up to 30% high on a fast fit); the
     avatar's parameters come back bit-for-bit and the fit's generator is not touched. The room
-    light's occlusion (Avatar.room_occlusion) is measured for every frame first, timed on its own:
-    the steps then time what they cost while the poses stay within its tolerance, and the estimate
-    counts the measurement once more (the poses move past the tolerance about once in the fit)."""
+    light's occlusion (Avatar.room_occlusion), when on, is measured for every frame first, timed on
+    its own: the steps then time what they cost while the poses stay within its tolerance, and the
+    estimate counts OCCLUSION_MEASUREMENTS such measurements of every frame."""
     start = time.perf_counter()
     occlusion_seconds = 0.0
     if problem.avatar.occlusion:
@@ -155,6 +158,7 @@ def calibrate(problem, schedule: Schedule, kinds) -> StepCosts:
     fallback = fallback_costs(problem.settings, len(problem.frames)).seconds
     for kind, cost in fallback.items():   # kinds not timed (nothing to move) cost what the model says
         seconds.setdefault(kind, cost)
+    occlusion_seconds *= OCCLUSION_MEASUREMENTS
     return StepCosts(seconds, _after_stages(seconds, problem.settings, len(problem.frames)) + occlusion_seconds,
                      calibrated=True, calibration_seconds=time.perf_counter() - start)
 

@@ -5,7 +5,8 @@ A world lights a Lambertian point with irradiance / pi = (1/pi) int L(w) max(0, 
 every direction w; for the fit's room, L = a + sum_k c_k R_k (formats/environment_light.py), this
 is a + sum_k c_k Y_k(n) when nothing is in the way, as the renderer shades without occlusion.
 Between the fingers, under a bent thumb, in a palm closing, part of the sphere is the hand
-itself (Cycles and every path tracer shade so), and what the point loses is
+itself, and what the point loses (of the room's direct light: the light the skin sends back into
+its own hollows, which a path tracer finds, is not modelled; docs/fidelity.md) is
 
     a O_0 + sum_k c_k O_k,   O_0 = (1/pi) int_blocked max(0, n . w) dw,
                              O_k = (1/pi) int_blocked max(0, n . w) R_k(w) dw
@@ -58,7 +59,7 @@ def blocked_directions(points, faces, directions, resolution=RESOLUTION, focus=N
     batch, count = points.shape[0], points.shape[1]
     normals = vertex_normals(points, faces)
     receivers = points + NORMAL_OFFSET * normals
-    held = points if focus is None else points[:, focus]
+    held = points if focus is None else points[:, focus.to(points.device)]
     centre = 0.5 * (held.amin(1) + held.amax(1))                                      # (B, 3)
     radius = (held - centre[:, None]).norm(dim=-1).amax(1)                            # (B,)
     blocked = torch.zeros(batch, count, len(directions), dtype=torch.bool, device=points.device)
