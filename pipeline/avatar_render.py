@@ -13,7 +13,7 @@ from .formats import hand_model_file as fmt
 from .handmodel.lbs import HandModel
 from .handmodel.poses import NAMED_POSES
 from .handmodel.rotations import axis_angle_to_matrix, matrix_to_axis_angle
-from .render.occlusion import hand_focus, lost_light
+from .render.occlusion import bounce_radiance, hand_focus, lost_light
 from .render.renderer import Appearance, Light, RenderMesh, render
 
 
@@ -79,7 +79,9 @@ def render_avatar(folder, out, pose="rest", frame=None, azimuth=0.0, elevation=0
         images = render(vertices, mesh, K, size, size, outputs=("rgb",),
                         appearance=appearance,
                         light=Light(light_position, ambient, shadows=use_shadows, environment=environment,
-                                    specular=specular, linear=colour_model.is_linear(fitted), occlusion=occlusion),
+                                    specular=specular, linear=colour_model.is_linear(fitted), occlusion=occlusion,
+                                    bounce=None if occlusion is None else bounce_radiance(
+                                        appearance.albedo, ambient, colour_model.is_linear(fitted))),
                         background=torch.tensor(background))
     image = (images["rgb"][0].clamp(0, 1).numpy() * 255).round().astype(np.uint8)
     out = Path(out)

@@ -39,7 +39,7 @@ def known_scene(folder):
     recover one part of the light from it: {vertices (F, V, 3), mesh, K, height, width, frames
     (F, H, W, 3) in [0, 1], masks (F, H, W, 1) bool, appearance (the true albedo), linear (the
     clip was shaded in linear light: Light.linear), occlusion (the room light's, as the clip was
-    drawn with it: Light.occlusion, or None)}."""
+    drawn with it: Light.occlusion, or None), bounce (Light.bounce, or None)}."""
     import cv2
     import numpy as np
     import torch
@@ -47,7 +47,7 @@ def known_scene(folder):
     from pipeline.evaluate.exact_clips import mottled_albedo
     from pipeline.formats import colour_model
     from pipeline.handmodel.lbs import HandModel
-    from pipeline.render.occlusion import hand_focus, lost_light
+    from pipeline.render.occlusion import bounce_radiance, hand_focus, lost_light
     from pipeline.render.renderer import Appearance, RenderMesh
 
     info = seq.read_sequence_info(folder)
@@ -62,7 +62,9 @@ def known_scene(folder):
     mesh = RenderMesh.from_model_data(model.data, dtype=torch.float64)
     occlusion = lost_light(vertices, mesh.faces, hand_focus(model.data.vertex_parts)) \
         if gt.light.get("occlusion", False) else None
-    return {"vertices": vertices, "mesh": mesh, "occlusion": occlusion,
+    bounce = None if occlusion is None else bounce_radiance(torch.as_tensor(mottled_albedo()), gt.light["ambient"],
+                                                            colour_model.is_linear(gt.light))
+    return {"vertices": vertices, "mesh": mesh, "occlusion": occlusion, "bounce": bounce,
             "K": torch.as_tensor(np.asarray(info.K), dtype=torch.float64), "height": info.height, "width": info.width,
             "frames": frames, "masks": masks, "appearance": Appearance(torch.as_tensor(mottled_albedo())),
             "linear": colour_model.is_linear(gt.light)}

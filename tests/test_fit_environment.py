@@ -34,7 +34,8 @@ def recovered_environment(folder, steps=150):
     for _ in range(steps):
         optimiser.zero_grad()
         light = Light(torch.tensor([0.1, -0.2, 0.0], dtype=torch.float64), torch.tensor(AMBIENT, dtype=torch.float64),
-                      environment=environment, linear=scene["linear"])
+                      environment=environment, linear=scene["linear"], occlusion=scene["occlusion"],
+                      bounce=scene["bounce"])
         rgb = render(scene["vertices"], scene["mesh"], scene["K"], scene["height"], scene["width"], outputs=("rgb",),
                      appearance=scene["appearance"], light=light, antialiased=False)["rgb"]
         loss = ((rgb - scene["frames"]).abs() * scene["masks"]).sum() / scene["masks"].sum()

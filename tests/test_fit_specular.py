@@ -38,7 +38,7 @@ def recovered_lobe(folder, steps=150):
         optimiser.zero_grad()
         lobe = low + (high - low) * torch.sigmoid(roughness_logit), torch.sigmoid(level_logit)
         light = Light(torch.tensor([0.1, -0.2, 0.0], dtype=torch.float64), torch.tensor(AMBIENT, dtype=torch.float64),
-                      specular=lobe, linear=scene["linear"], occlusion=scene["occlusion"])
+                      specular=lobe, linear=scene["linear"], occlusion=scene["occlusion"], bounce=scene["bounce"])
         rgb = render(scene["vertices"], scene["mesh"], scene["K"], scene["height"], scene["width"], outputs=("rgb",),
                      appearance=scene["appearance"], light=light, antialiased=False)["rgb"]
         loss = ((rgb - scene["frames"]).pow(2) * scene["masks"]).sum() / scene["masks"].sum()

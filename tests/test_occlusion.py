@@ -142,3 +142,18 @@ def test_the_fit_measures_a_frames_occlusion_again_only_once_its_pose_has_moved(
     assert avatar.light().occlusion is None                                    # no frames given: none
     avatar.occlusion = False
     assert avatar.light(False, batch, avatar.posed(batch)[0]).occlusion is None
+
+
+def test_the_skin_sends_back_what_it_blocks_by_its_mean_albedo_under_its_mean_shading():
+    """bounce_radiance: a uniform albedo rho under an ambient a gives rho (a + (1 - a) / 4) (the
+    mean of max(0, n . l) over a sphere is 1/4: checked by quadrature), decoded in linear light;
+    the renderer takes b O_0 back off the loss."""
+    directions = occlusion._quadrature(torch.float64, torch.device("cpu"), 4096)[0]
+    assert directions[:, 2].clamp(min=0).mean().item() == pytest.approx(0.25, abs=1e-3)
+    albedo = torch.full((3, 4, 4), 0.5, dtype=torch.float64)
+    np.testing.assert_allclose(occlusion.bounce_radiance(albedo, 0.6, linear=False), 0.5 * (0.6 + 0.4 / 4))
+    decoded = ((0.5 + 0.055) / 1.055) ** 2.4   # sRGB 0.5 in linear light (IEC 61966-2-1)
+    np.testing.assert_allclose(occlusion.bounce_radiance(albedo, 0.6, linear=True), decoded * 0.7, rtol=1e-9)
+    lost = torch.tensor([[0.5] + [0.0] * 8], dtype=torch.float64)
+    bounce = torch.tensor([0.1, 0.2, 0.3], dtype=torch.float64)
+    np.testing.assert_allclose(occlusion.lost_shading(lost, 0.6, None, bounce), [[0.25, 0.2, 0.15]])

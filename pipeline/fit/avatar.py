@@ -27,7 +27,7 @@ from ..formats import environment_light
 from ..formats.colour_model import LINEAR, checked
 from ..formats.specular_lobe import LEVEL_MAX, ROUGHNESS_RANGE
 from ..handmodel.lbs import HandModel
-from ..render.occlusion import hand_focus, lost_light
+from ..render.occlusion import bounce_radiance, hand_focus, lost_light
 from ..render.renderer import Appearance, Light, RenderMesh
 from ..render.shading import vertex_normals
 
@@ -138,7 +138,8 @@ class Avatar(torch.nn.Module):
         occlusion = None if batch is None or not self.occlusion else self.room_occlusion(batch, vertices)
         return Light(self.light_position, self.ambient, shadows=shadows,
                      environment=self.environment if bool(self.environment_on) else None, specular=self.specular(),
-                     linear=self.linear_light, occlusion=occlusion)
+                     linear=self.linear_light, occlusion=occlusion,
+                     bounce=None if occlusion is None else bounce_radiance(self.albedo, self.ambient, self.linear_light))
 
     @torch.no_grad()
     def measure_occlusion(self, batch_size=8, exact=False):

@@ -5,13 +5,16 @@ A world lights a Lambertian point with irradiance / pi = (1/pi) int L(w) max(0, 
 every direction w; for the fit's room, L = a + sum_k c_k R_k (formats/environment_light.py), this
 is a + sum_k c_k Y_k(n) when nothing is in the way, as the renderer shades without occlusion.
 Between the fingers, under a bent thumb, in a palm closing, part of the sphere is the hand
-itself, and what the point loses (of the room's direct light: the light the skin sends back into
-its own hollows, which a path tracer finds, is not modelled; docs/fidelity.md) is
+itself, and what the point loses of the room's light is
 
     a O_0 + sum_k c_k O_k,   O_0 = (1/pi) int_blocked max(0, n . w) dw,
                              O_k = (1/pi) int_blocked max(0, n . w) R_k(w) dw
 
-(O_0: the cosine-weighted blocked share, 0 in the open, 1 fully enclosed). The integrals are sums
+(O_0: the cosine-weighted blocked share, 0 in the open, 1 fully enclosed). Along a blocked
+direction the point sees the hand's own skin, which sends light back (a path tracer finds it: a
+pale skin returns most of what it blocks); with a `bounce` b (per colour, bounce_radiance: the
+hand's mean albedo under its mean shading) seen in every blocked direction the loss is
+a O_0 + sum_k c_k O_k - b O_0. The integrals are sums
 over DIRECTIONS directions spread evenly over the sphere (weight 4 pi / D each); a direction is
 blocked at a vertex where a depth map of the mesh seen from far along it holds a surface nearer
 than the vertex (by a slope-scaled bias of a few texels, so that a surface never blocks itself).
@@ -27,6 +30,7 @@ import functools
 
 import torch
 
+from ..formats.colour_model import srgb_to_linear
 from ..formats.environment_light import radiance_basis, sphere_directions
 from ..formats.hand_model_file import PART_NAMES
 from .rasterize import project, rasterize
@@ -108,12 +112,25 @@ def hand_focus(vertex_parts, device=None):
     return None if bool(focus.all()) else focus
 
 
-def lost_shading(lost, ambient, environment=None):
-    """(N, C) the shading factor a point loses to occlusion, a O_0 + sum_k c_k O_k, of its
-    interpolated `lost` (N, 9) under the ambient ratio a (scalar) and the environment's
-    coefficients (8, C) or None."""
+def bounce_radiance(albedo, ambient, linear):
+    """(3,) the light the hand's skin sends back along a blocked direction, in the shading's
+    units: its mean albedo (decoded in linear light, `linear`; albedo (3, H, W)) under its mean
+    shading, the ambient a and a quarter of the point light's share (the mean of max(0, n . l)
+    over a sphere is 1/4): mean(albedo) (a + (1 - a) / 4). No gradient."""
+    albedo = albedo.detach().clamp(0, 1)
+    mean = (srgb_to_linear(albedo) if linear else albedo).mean((1, 2))
+    ambient = torch.as_tensor(ambient, dtype=mean.dtype, device=mean.device).detach()
+    return mean * (ambient + (1 - ambient) / 4)
+
+
+def lost_shading(lost, ambient, environment=None, bounce=None):
+    """(N, C) the shading factor a point loses to occlusion, a O_0 + sum_k c_k O_k - b O_0, of its
+    interpolated `lost` (N, 9) under the ambient ratio a (scalar), the environment's coefficients
+    (8, C) or None, and the skin's `bounce` b ((C,), bounce_radiance) or None."""
     loss = ambient * lost[:, :1]
     if environment is not None:
         loss = loss + lost[:, 1:] @ environment.to(lost.dtype)
+    if bounce is not None:
+        loss = loss - lost[:, :1] * bounce.to(lost.dtype)
     return loss
 

@@ -103,6 +103,8 @@ class Light:
     # (B, V, 9) per vertex, the room light (ambient and environment) the hand's own surfaces keep
     # from it (render/occlusion.py lost_light); None: every point sees the whole room
     occlusion: torch.Tensor | None = None
+    # (3,) the light the skin sends back along a blocked direction (render/occlusion.py bounce_radiance); None: none
+    bounce: torch.Tensor | None = None
 
 
 def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appearance=None,
@@ -201,7 +203,7 @@ def _lit_colour(ops, points, faces, frags, position, albedo, normal, light, lost
     if light.environment is not None:
         colour = colour + albedo * reference_shading.environment_shading(normal, light.environment)
     if lost is not None:
-        colour = colour - albedo * room_occlusion.lost_shading(lost, light.ambient, light.environment)
+        colour = colour - albedo * room_occlusion.lost_shading(lost, light.ambient, light.environment, light.bounce)
     if light.specular is not None:
         to_light = torch.nn.functional.normalize(light_position - position, dim=-1, eps=1e-12)
         to_camera = torch.nn.functional.normalize(-position, dim=-1, eps=1e-12)   # the camera is the origin
