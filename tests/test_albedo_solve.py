@@ -243,7 +243,7 @@ def test_in_linear_light_the_solve_finds_the_albedo_through_the_encoding_and_the
 
 def test_where_the_hand_hides_the_room_from_itself_the_solve_does_not_darken_the_albedo(tmp_path_factory):
     """Frames of a pinch under an ambient light that the hand holds back from its own hollows
-    (render/occlusion.py): solved with the occlusion, the albedo
+    (render/occlusion.py, the skin's bounce with it): solved with the occlusion, the albedo
     is the one they were drawn with, in the hollows too; solved as if every point saw the whole
     room, the hollows' darkness goes into the albedo."""
     problem, truth = problem_rendered_with(tmp_path_factory, mottled_albedo(TEXTURE), NAMED_POSES["pinch"])
@@ -258,9 +258,10 @@ def test_where_the_hand_hides_the_room_from_itself_the_solve_does_not_darken_the
     read = solved[True][1].numpy() & hollow
     errors = {occlusion: np.abs(albedo.numpy() - truth).mean(0)[read].mean() for occlusion, (albedo, _) in solved.items()}
     darker = {occlusion: (truth - albedo.numpy()).mean(0)[read].mean() for occlusion, (albedo, _) in solved.items()}
-    # measured: error 0.003 against 0.052; darker by -0.002 against 0.052 (all of the error)
-    assert errors[True] < 0.01 and errors[False] > 5 * errors[True], errors
-    assert darker[False] > 0.03 and abs(darker[True]) < 0.01, darker
+    # measured: error 0.002 against 0.014; darker by -0.001 against 0.014 (all of the error: the skin's bounce,
+    # bounce_radiance, gives back 0.6-0.7 of what a pale skin blocks)
+    assert errors[True] < 0.005 and errors[False] > 4 * errors[True], errors
+    assert darker[False] > 0.01 and abs(darker[True]) < 0.003, darker
 
 
 def _texels_where(problem, condition):
