@@ -80,3 +80,16 @@ def test_a_state_from_before_the_restart_reads():
     values = state.to_dict()
     del values["restarted"]
     assert FitState.from_dict(values).restarted is None
+
+
+def test_the_restart_is_asked_for():
+    """Off by default (docs/fit.md: the frames gain, the hand's size moves), and off in settings
+    saved before it."""
+    from pipeline.fit.settings import FitSettings
+
+    settings = settings_for("fast", 4)
+    assert settings.restart_lost_frames == "off"
+    values = {k: v for k, v in vars(settings).items() if k != "restart_lost_frames"}
+    assert FitSettings.from_dict(values).restart_lost_frames == "off"
+    with pytest.raises(ValueError, match="restart_lost_frames"):
+        FitSettings(restart_lost_frames="yes")

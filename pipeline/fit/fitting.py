@@ -178,7 +178,8 @@ def _run(setup: FitSetup, job, out, observers, started):
                 clock.observe(observers, "step", problem)
                 saver.save_now_and_then(state, run, generator)
             clock.charge()
-            if state.schedule[index].kind is StageKind.ALIGN and state.restarted is None:
+            if state.schedule[index].kind is StageKind.ALIGN and state.restarted is None \
+                    and settings.restart_lost_frames == "on":
                 _restart_lost_frames(problem, state, reporter)
             state.stage, state.step, state.order = index + 1, 0, []
             saver.save(state, None, generator)

@@ -70,6 +70,11 @@ class FitSettings:
     # world) "on" lost 1.8 dB on the fitted frames, level on the phone-like clip: the light the hand's own bright skin
     # sends back into its hollows (Cycles' bounces, its subsurface scattering) is not modelled (docs/fidelity.md)
     occlusion: str = "off"
+    # frames the alignment left off their silhouettes started again from their neighbours (lost_frames.py):
+    # "on" | "off", the default: on the phone-like clip (2 seeds) the fitted and held-out frames gained 0.4-1.3 dB
+    # and the albedo came nearer the truth, but the hand's size moved (surface 0.68 -> 2.31 and 0.73 -> 0.87 mm,
+    # new poses worse: docs/fit.md)
+    restart_lost_frames: str = "off"
     # frames kept out of the fit and scored as it runs: the best state is written (validation.py). Off until it
     # is shown to help: with `fast` on the demo clip (3 seeds) it left held-out PSNR level (27.76 dB both), joints
     # 0.11 mm worse, 10% more time; on the sun clip it went back to an earlier state whose surface was 36% worse
@@ -91,6 +96,8 @@ class FitSettings:
         colour_model.checked(self.colour_model)
         if self.occlusion not in ("on", "off"):
             raise ValueError(f"occlusion must be 'on' or 'off', got {self.occlusion!r}")
+        if self.restart_lost_frames not in ("on", "off"):
+            raise ValueError(f"restart_lost_frames must be 'on' or 'off', got {self.restart_lost_frames!r}")
         if not 0.0 < self.final_rate_fraction <= 1.0:
             raise ValueError(f"final_rate_fraction must be in (0, 1] (1: constant rates), "
                              f"got {self.final_rate_fraction}")
@@ -127,6 +134,7 @@ class FitSettings:
         values.setdefault("plateau_tolerance", 0.0)      # saved before the rates halved on a plateau
         values.setdefault("colour_model", "display")     # saved before the colour model was a choice: display
         values.setdefault("occlusion", "off")             # saved before the room light's occlusion
+        values.setdefault("restart_lost_frames", "off")   # saved before lost frames were started again
         if "steps" in values:
             values["steps"] = tuple(values["steps"])
         return cls(**values)
