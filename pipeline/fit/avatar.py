@@ -55,7 +55,7 @@ class Avatar(torch.nn.Module):
     """Parameters of one fit. `model` is the subdivided HandModel of the clip's mode and side."""
 
     def __init__(self, model: HandModel, initial, frames, texture_size=512, light_position=None, coarse_model=None,
-                 displacement_parents=None, colour_model=LINEAR, occlusion=False):
+                 displacement_parents=None, colour_model=LINEAR):
         super().__init__()
         self.model = model
         # how the albedo and light make the frames' values (formats/colour_model.py; FitSettings.colour_model)
@@ -95,8 +95,9 @@ class Avatar(torch.nn.Module):
         if model.mode == "hand":
             self.pose_mask[0] = 0
         self.register_buffer("frame_numbers", torch.as_tensor(np.asarray(frames), device=device), persistent=False)
-        # the room light's occlusion (FitSettings.occlusion): per frame, measured at a pose and kept (not saved)
-        self.occlusion = bool(occlusion)
+        # the room light's occlusion (FitSettings.occlusion, set by problem.build_problem): per frame, measured at
+        # a pose and kept (not saved)
+        self.occlusion = False
         self._lost, self._lost_pose, self._lost_betas = None, None, None
         self._occlusion_focus = hand_focus(model.data.vertex_parts, device)
         self.mesh = RenderMesh.from_model_data(model.data, device=device, dtype=dtype)
