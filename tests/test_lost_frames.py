@@ -7,7 +7,7 @@ import torch
 
 from pipeline.evaluate.exact_clips import write_clip
 from pipeline.fit.checkpoint import FitState
-from pipeline.fit.lost_frames import alignment_ious, restart_lost_frames
+from pipeline.fit.lost_frames import alignment_ious, anchor_restarted, restart_lost_frames
 from pipeline.fit.problem import build_problem
 from pipeline.fit.settings import settings_for
 from pipeline.formats import sequence_folder as seq
@@ -67,6 +67,10 @@ def test_a_frame_turned_over_is_found_and_started_again_near_its_true_pose(probl
     assert torch.equal(problem.anchor_keypoints[others], anchor_before[others])
     _, keypoints = avatar.posed(torch.tensor([FLIPPED]))
     torch.testing.assert_close(problem.anchor_keypoints[FLIPPED], keypoints[0, :21].detach())
+    problem.anchor_keypoints[FLIPPED] = anchor_before[FLIPPED]       # a resumed fit's problem, built again
+    anchor_restarted(problem, found)
+    torch.testing.assert_close(problem.anchor_keypoints[FLIPPED], keypoints[0, :21].detach())
+    assert torch.equal(problem.anchor_keypoints[others], anchor_before[others])
 
 
 def test_frames_that_cover_their_masks_are_left_alone(problem):

@@ -65,13 +65,10 @@ def restart_lost_frames(problem) -> dict:
         getattr(avatar, name)[index] = start[name].to(getattr(avatar, name).dtype)
     after = alignment_ious(problem, lost).cpu().numpy()
     better = after >= ious[lost] + GAIN
+    kept_own = torch.as_tensor(~better, device=index.device)
     for name in POSE:       # where the neighbours' pose is no better, the frame keeps its own
-        parameter = getattr(avatar, name)
-        parameter[index[~torch.as_tensor(better)]] = before[name][~torch.as_tensor(better)]
-    restarted = index[torch.as_tensor(better)]
-    if len(restarted):
-        _, keypoints = avatar.posed(restarted)
-        problem.anchor_keypoints[restarted] = keypoints[:, :21].to(problem.anchor_keypoints.dtype)
+        getattr(avatar, name)[index[kept_own]] = before[name][kept_own]
+    _anchor_where_they_are(problem, index[~kept_own])
     result.update(frames=[int(sequence_frames[i]) for i in lost[better]],
                   iou_before=[round(float(v), 4) for v in ious[lost][better]],
                   iou_after=[round(float(v), 4) for v in after[better]])
@@ -82,9 +79,13 @@ def restart_lost_frames(problem) -> dict:
 def anchor_restarted(problem, restarted: dict):
     """On a resumed fit: the anchor of the frames restart_lost_frames restarted, at their current
     keypoints (the problem was built again, its anchors at the initial keypoints)."""
-    frames = [int(np.flatnonzero(np.asarray(problem.frames) == frame)[0]) for frame in restarted.get("frames", [])
-              if frame in set(np.asarray(problem.frames).tolist())]
-    if frames:
-        index = torch.as_tensor(frames, device=problem.avatar.pose.device)
+    fitted = np.asarray(problem.frames)
+    _anchor_where_they_are(problem, torch.as_tensor(np.flatnonzero(np.isin(fitted, restarted.get("frames", []))),
+                                                    device=problem.avatar.pose.device))
+
+
+def _anchor_where_they_are(problem, index):
+    """The keypoint anchor of the fitted frames `index` moved to their poses' keypoints now."""
+    if len(index):
         _, keypoints = problem.avatar.posed(index)
         problem.anchor_keypoints[index] = keypoints[:, :21].to(problem.anchor_keypoints.dtype)
