@@ -67,8 +67,8 @@ class FitSettings:
     colour_model: str = "linear"
     # the room light (ambient and environment) held back where the hand itself stands in its way (render/occlusion.py):
     # "on" | "off" (every point sees the whole room, HARP's light), the default: on the demo clip (Cycles, a uniform
-    # world) "on" lost 1.8 dB on the fitted frames, level on the phone-like clip: the light the hand's own bright skin
-    # sends back into its hollows (Cycles' bounces, its subsurface scattering) is not modelled (docs/fidelity.md)
+    # world) "on" without the skin's bounce lost 1.8 dB on the fitted frames, level on the phone-like clip; with the
+    # bounce (occlusion.bounce_radiance) the demo's seed 0 is level with "off": 3 seeds to go (docs/fidelity.md)
     occlusion: str = "off"
     # frames the alignment left off their silhouettes started again from their neighbours (lost_frames.py):
     # "on" | "off", the default: on the phone-like clip (2 seeds) the fitted and held-out frames gained 0.4-1.3 dB
