@@ -16,6 +16,7 @@ from pipeline.fit.problem import build_problem
 from pipeline.fit.schedule import Schedule, StageKind, StageSpec
 from pipeline.fit.settings import settings_for
 from pipeline.formats.initial_estimate import read_initial_estimate
+from pipeline.handmodel.lbs import HandModel
 
 FIT = dict(progress="none", texture_size=64, batch_size=2, resolution=96, shadows="off", device="cpu",
            solve_albedo=False)
@@ -160,3 +161,44 @@ def test_the_shape_prior_holds_the_shape_near_the_initial_estimates(tiny_clip, t
         betas = load_checkpoint(out / CHECKPOINT_FILE, "cpu").avatar["betas"]
         drift[weight] = float((betas - start.to(betas.dtype)).abs().max())
     assert drift[0.0] > 0.05 and drift[1000.0] < 0.3 * drift[0.0]
+
+
+def test_the_size_prior_holds_the_hands_size_and_leaves_its_proportions_free(tiny_clip, tmp_path, monkeypatch):
+    """Off by default. A test term pulls the shape towards a larger hand with longer index
+    fingers: unweighted, the size grows with it; weighted, the size stays at the initial
+    estimate's while the index finger still lengthens."""
+    weights = settings_for("fast", 4).weights
+    assert weights["size_prior"] == 0.0
+    model = HandModel.load("hand", "right", dtype=torch.float64)
+    start_betas = torch.as_tensor(read_initial_estimate(tiny_clip).betas, dtype=torch.float64)
+    start_size = float(model.size(start_betas))
+    target = start_betas.clone()
+    target[0] += 3.0       # 15% larger
+    target[5] += 3.0       # the index finger 12% longer
+
+    def _shape_pull(batch):
+        betas = batch.problem.avatar.betas
+        return (betas - target.to(betas)).square().mean()
+
+    pull = EnergyTerm("shape_pull", 1.0, frozenset({StageKind.ALIGN, StageKind.GEOMETRY, StageKind.JOINT}), _shape_pull)
+    monkeypatch.setitem(ENERGY_TERMS, pull.name, pull)
+    size_change, index_change = {}, {}
+    for weight in (0.0, 1.0):
+        out = tmp_path / f"size{weight:g}"
+        fitting.fit(tiny_clip, out, weights={**weights, "size_prior": weight}, max_steps=25, lr_betas=0.05, **FIT)
+        betas = load_checkpoint(out / CHECKPOINT_FILE, "cpu").avatar["betas"].to(torch.float64)
+        size_change[weight] = float(model.size(betas)) / start_size - 1
+        index_change[weight] = float(betas[5] - start_betas[5])
+    assert size_change[0.0] > 0.02 and abs(size_change[1.0]) < 0.1 * size_change[0.0]
+    assert index_change[0.0] > 0.3 and index_change[1.0] > 0.5 * index_change[0.0]
+
+
+def test_the_hands_size_is_the_rms_spread_of_its_rest_keypoints():
+    """HandModel.size against its definition, and the scale parameter's +5% per unit."""
+    model = HandModel.load("hand", "right", dtype=torch.float64)
+    keypoints = torch.as_tensor(model.data.keypoints[:21], dtype=torch.float64)
+    expected = float(np.sqrt(((keypoints - keypoints.mean(0)) ** 2).sum(1).mean()))
+    betas = torch.zeros(model.num_betas, dtype=torch.float64)
+    assert float(model.size(betas)) == pytest.approx(expected, rel=1e-12)
+    betas[0] = 1.0
+    assert float(model.size(betas)) == pytest.approx(1.05 * expected, rel=1e-6)

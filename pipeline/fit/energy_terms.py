@@ -195,6 +195,21 @@ def _shape_prior(batch):
     return losses.shape_prior_loss(batch.problem.avatar.betas, batch.problem.term_data["shape_prior"])
 
 
+def _initial_size(problem):
+    """The initial estimate's hand size (HandModel.size of its shape: from the keypoints' bone lengths)."""
+    return problem.avatar.model.size(_initial_betas(problem)).detach()
+
+
+# ours: the hand's overall size held near the initial estimate's, the other shape parameters free. One
+# camera does not see a hand's size (a larger hand farther away looks the same) and a long fit lets it
+# wander, which costs new poses about 1.5 dB per per cent (docs/performance.md); the keypoints' metric
+# bone lengths set it within 2-3% on the synthetic clips (docs/fidelity.md)
+@_term("size_prior", 0.0, _GEOMETRY, prepare=_initial_size)
+def _size_prior(batch):
+    model = batch.problem.avatar.model
+    return losses.size_prior_loss(model.size(batch.problem.avatar.betas), batch.problem.term_data["size_prior"])
+
+
 # --- appearance
 
 @_term("photometric", 1.0, _APPEARANCE | {StageKind.HELD_OUT}, needs=(SHADED,))

@@ -93,6 +93,15 @@ def shape_prior_loss(betas, target):
     return (betas - target).square().mean()
 
 
+SIZE_UNIT = 0.01    # one per cent of the hand's size
+
+
+def size_prior_loss(size, target):
+    """Squared relative change of the hand's size (a scalar, HandModel.size) from a target size,
+    in per cent (log ratio / SIZE_UNIT): 1 for a hand 1% larger or smaller."""
+    return (torch.log(size / target) / SIZE_UNIT).square()
+
+
 def eroded_mask(mask, pixels=2):
     """Binary erosion of (B, H, W, 1) masks by a square of radius `pixels` (no gradient)."""
     inverted = 1 - (mask > 0.5).to(mask.dtype).permute(0, 3, 1, 2)

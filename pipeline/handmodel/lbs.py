@@ -81,6 +81,12 @@ class HandModel(torch.nn.Module):
         keypoints = self.keypoints_template + torch.einsum("kcs,...s->...kc", self.keypoint_shapedirs, betas)
         return vertices, joints, keypoints
 
+    def size(self, betas):
+        """The hand's overall size for shape betas (S,) or (B, S): the RMS distance (metres) of its
+        21 hand keypoints at rest from their centroid (wrist, knuckles, joints and tips; no elbow)."""
+        keypoints = self.shaped(betas)[2][..., :21, :]
+        return (keypoints - keypoints.mean(-2, keepdim=True)).square().sum(-1).mean(-1).sqrt()
+
     def bone_transforms(self, joints, pose, global_orient, transl):
         """(B, J, 3, 4) posed-from-rest affine transform of every bone.
 
