@@ -479,3 +479,45 @@ def test_the_initial_forearm_is_turned_to_the_masks(tmp_path):
             np.testing.assert_allclose(keypoints[:, :21].numpy(), swung.keypoints3d, atol=1e-6)
     print("forearm direction error (degrees)", angles, summary)
     assert summary["frames"] == 6 and angles["swung"] > 60 and angles["turned"] < 5
+
+
+def _blurred_disc(radius, sigma, skin=(180, 120, 100), background=(200, 200, 200), size=128):
+    """(image (size, size, 3) uint8 of a disc of `skin` on `background`, blurred by a Gaussian of
+    `sigma` px, (size, size) float coverage of the sharp disc) at the image's centre."""
+    fine = 8
+    rows, cols = (np.mgrid[0:size * fine, 0:size * fine] + 0.5) / fine - size / 2
+    coverage = cv2.resize((np.hypot(rows, cols) < radius).astype(np.float64), (size, size),
+                          interpolation=cv2.INTER_AREA)
+    colours = coverage[..., None] * np.array(skin) + (1 - coverage[..., None]) * np.array(background)
+    image = cv2.GaussianBlur(colours, (0, 0), sigma) if sigma > 0 else colours
+    return np.round(image).astype(np.uint8), coverage
+
+
+@pytest.mark.parametrize("sigma", [0.0, 1.5, 3.0])
+def test_the_outline_moves_to_half_way_across_a_blurred_edge(sigma):
+    """A mask 3 px too large round a disc (what GrabCut makes of a defocused edge) is brought to
+    the disc's own outline: the half-way level of a blurred step lies on the sharp edge."""
+    from pipeline.detection.hand_masks import refine_outline
+
+    image, coverage = _blurred_disc(30.0, sigma)
+    truth = coverage > 0.5
+    rows, cols = np.mgrid[0:128, 0:128] + 0.5 - 64
+    too_large = np.hypot(rows, cols) < 33.0
+    refined = refine_outline(image, too_large)
+
+    def iou(a, b):
+        return (a & b).sum() / (a | b).sum()
+
+    assert iou(too_large, truth) < 0.85
+    assert iou(refined, truth) > 0.97
+    assert abs(int(refined.sum()) - int(truth.sum())) < 0.02 * truth.sum()
+
+
+def test_the_outline_stays_where_skin_and_background_look_alike():
+    from pipeline.detection.hand_masks import MIN_COLOUR_STEP, refine_outline
+
+    near = tuple(200 - int(MIN_COLOUR_STEP) // 3 for _ in range(3))
+    image, _ = _blurred_disc(30.0, 1.5, skin=near)
+    rows, cols = np.mgrid[0:128, 0:128] + 0.5 - 64
+    too_large = np.hypot(rows, cols) < 33.0
+    assert np.array_equal(refine_outline(image, too_large), too_large)
