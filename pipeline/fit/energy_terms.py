@@ -200,10 +200,11 @@ def _initial_size(problem):
     return problem.avatar.model.size(_initial_betas(problem)).detach()
 
 
-# ours: the hand's overall size held near the initial estimate's, the other shape parameters free. One
-# camera does not see a hand's size (a larger hand farther away looks the same) and a long fit lets it
-# wander, which costs new poses about 1.5 dB per per cent (docs/performance.md); the keypoints' metric
-# bone lengths set it within 2-3% on the synthetic clips (docs/fidelity.md)
+# ours: the hand's overall size held within 3% of the initial estimate's (losses.SIZE_TOLERANCE), the other
+# shape parameters free. One camera barely sees a hand's size (a larger hand farther away looks the same),
+# and a fit can let it wander, which costs new poses about 1.5 dB per per cent (docs/performance.md); the
+# keypoints' metric bone lengths set it within 2-3% on the synthetic clips, and inside that band the
+# footage decides (held at the initial size itself, the proportions bent to make up for it: docs/fidelity.md)
 @_term("size_prior", 0.0, _GEOMETRY, prepare=_initial_size)
 def _size_prior(batch):
     model = batch.problem.avatar.model

@@ -93,13 +93,16 @@ def shape_prior_loss(betas, target):
     return (betas - target).square().mean()
 
 
-SIZE_UNIT = 0.01    # one per cent of the hand's size
+SIZE_UNIT = 0.01         # one per cent of the hand's size
+SIZE_TOLERANCE = 0.03    # the size prior's free band: the keypoints' metric size is good to about this
 
 
-def size_prior_loss(size, target):
-    """Squared relative change of the hand's size (a scalar, HandModel.size) from a target size,
-    in per cent (log ratio / SIZE_UNIT): 1 for a hand 1% larger or smaller."""
-    return (torch.log(size / target) / SIZE_UNIT).square()
+def size_prior_loss(size, target, tolerance=SIZE_TOLERANCE):
+    """Squared relative change of the hand's size (a scalar, HandModel.size) from a target size
+    beyond a free band of +-`tolerance`, in per cent (log ratio / SIZE_UNIT): 0 within the band,
+    1 for a hand 1% beyond it."""
+    beyond = torch.relu(torch.log(size / target).abs() - tolerance)
+    return (beyond / SIZE_UNIT).square()
 
 
 def eroded_mask(mask, pixels=2):
