@@ -46,10 +46,11 @@ OUTLINE_REACH = 12       # ... and the radius (pixels) of the neighbourhood whos
 MIN_COLOUR_STEP = 15.0   # ... where skin and background differ by less (RGB levels), the outline stays
 
 
-def frame_mask(rgb, points, other_hand=None):
+def frame_mask(rgb, points, other_hand=None, refine=True):
     """(H, W) bool hand mask of an RGB frame (H, W, 3) uint8 given its 21 landmarks (21, 2) in
     pixels (corner origin); `other_hand` (21, 2), when finite: the other hand's landmarks, kept
-    out of the mask."""
+    out of the mask. `refine`: the outline moved to half-way across the edge (refine_outline);
+    False: GrabCut's own (for comparison)."""
     height, width = rgb.shape[:2]
     points = np.asarray(points, dtype=np.float64)
     palm = float(np.linalg.norm(points[9] - points[0]))
@@ -94,6 +95,8 @@ def frame_mask(rgb, points, other_hand=None):
     hand = np.zeros((height, width), bool)
     hand[window] = (labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD)
     hand = _clean(hand, centre)
+    if not refine:
+        return hand
     hand[window] = refine_outline(rgb[window], hand[window])
     return _clean(hand, centre)
 
@@ -185,9 +188,10 @@ def _clean(hand, centre):
     return part | (~np.isin(background, list(outer)) & ~part)
 
 
-def screened_masks(frames, keypoints, fps, on_frame=None):
+def screened_masks(frames, keypoints, fps, on_frame=None, refine=True):
     """([(H, W) bool mask per frame], FootageScreen) of RGB frames (a list) and their Keypoints2D:
-    frames the screen names (footage_screen.py) get an empty mask; `on_frame(number)` after each."""
+    frames the screen names (footage_screen.py) get an empty mask; `on_frame(number)` after each;
+    `refine`: frame_mask's."""
     without_hand = frames_without_hand(keypoints.detected, fps, keypoints.points)
     other = keypoints.other_hand
     both = [] if other is None else [int(i) for i in np.flatnonzero(np.isfinite(other).all(axis=(1, 2)))]
@@ -196,7 +200,7 @@ def screened_masks(frames, keypoints, fps, on_frame=None):
     for number, (rgb, points) in enumerate(zip(frames, keypoints.points)):
         mask = np.zeros(rgb.shape[:2], bool)
         if not without_hand[number]:
-            mask = frame_mask(rgb, points, None if other is None else other[number])
+            mask = frame_mask(rgb, points, None if other is None else other[number], refine)
             if landmarks_in_mask(mask, points) < MIN_LANDMARKS_IN_MASK:
                 screen.mask_disagrees.append(number)
                 mask = np.zeros(rgb.shape[:2], bool)
@@ -206,12 +210,12 @@ def screened_masks(frames, keypoints, fps, on_frame=None):
     return masks, screen
 
 
-def clip_masks(frames, side, detector=None, fps=30.0):
+def clip_masks(frames, side, detector=None, fps=30.0, refine=True):
     """(F, H, W) bool masks of an iterable of RGB frames of one hand `side` (frames the screen
-    names are empty). Returns (masks, detected (F,) bool, FootageScreen)."""
+    names are empty; `refine`: frame_mask's). Returns (masks, detected (F,) bool, FootageScreen)."""
     from .mediapipe_hands import detect_keypoints
 
     frames = list(frames)
     keypoints = detect_keypoints(frames, side, detector)          # raises KeypointError without any hand
-    masks, screen = screened_masks(frames, keypoints, fps)
+    masks, screen = screened_masks(frames, keypoints, fps, refine=refine)
     return np.stack(masks), keypoints.detected, screen
