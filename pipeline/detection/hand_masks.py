@@ -17,7 +17,8 @@ with its holes closed. GrabCut takes a defocused or motion-blurred edge whole in
 the MediaPipe sample video its masks ran 1-2 px wide all round against masks drawn by hand), so
 the outline is then moved to half-way across the colour step between the skin just inside and
 the background just outside (`refine_outline`), the rule the drawn masks follow (IoU with them
-0.904 -> 0.930 on their 10 frames; docs/real_footage.md). Where the other hand is in the frame too, its bones are sure background.
+0.904 -> 0.930 on their 10 frames; docs/real_footage.md). Where the other hand is in the frame
+too, its bones are sure background.
 Frames where MediaPipe finds no hand take the landmarks of the nearest frames in time
 (interpolated) when a detection lies close enough on both sides, and are otherwise left out
 (footage_screen.py); a clip where it finds none fails with one line.
