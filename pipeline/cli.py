@@ -37,11 +37,34 @@ def _budget(text):
         raise argparse.ArgumentTypeError(str(error)) from None
 
 
+def _term_weights(pairs):
+    """{term name: weight} of `--weight NAME=VALUE` arguments, over the registry's defaults (None
+    when none is given); an unknown name or a bad value ends the command with one line."""
+    if not pairs:
+        return None
+    from .fit.energy_terms import ENERGY_TERMS, default_weights
+
+    weights = default_weights()
+    for pair in pairs:
+        name, _, value = pair.partition("=")
+        if name not in ENERGY_TERMS:
+            raise SystemExit(f"harp fit: --weight {pair}: no energy term named {name!r}; the terms are "
+                             f"{', '.join(ENERGY_TERMS)}")
+        try:
+            weights[name] = float(value)
+        except ValueError:
+            raise SystemExit(f"harp fit: --weight {pair}: the weight must be a number (NAME=VALUE)") from None
+        if not weights[name] >= 0:
+            raise SystemExit(f"harp fit: --weight {pair}: the weight must be 0 or more")
+    return weights
+
+
 def _fit(args):
     configure_threads(args.threads)
     from .fit import fit
     from .fit.outputs import metrics_line
 
+    weights = _term_weights(args.weight)
     observers = []
     if args.curve:
         from .evaluate.curve import CurveRecorder
@@ -54,7 +77,8 @@ def _fit(args):
                  validation_frames=args.validation_frames, workers=args.workers, environment=args.environment,
                  specular=args.specular, colour_model=args.colour_model, occlusion=args.occlusion,
                  restart_lost_frames=args.restart_lost_frames,
-                 **({} if args.seed is None else {"seed": args.seed}))
+                 **({} if args.seed is None else {"seed": args.seed}),
+                 **({} if weights is None else {"weights": weights}))
     print(f"wrote {args.out} in {report['total_seconds']:.0f} s: {metrics_line(report['metrics'])}")
 
 
@@ -204,6 +228,9 @@ def build_parser():
                      help="frames the alignment left off their silhouettes (a hand the detector turned over) started "
                           "again from their neighbours' poses: on, or off (default: on a phone-like clip it gained "
                           "0.4-1.3 dB on the frames but moved the hand's size; docs/fit.md)")
+    fit.add_argument("--weight", action="append", default=None, metavar="NAME=VALUE",
+                     help="an energy term's weight (repeatable), e.g. size_prior=1 (the terms and their defaults: "
+                          "pipeline/fit/energy_terms.py; 0 switches a term off)")
     fit.add_argument("--resume", action="store_true", help="continue from the avatar folder's checkpoint")
     fit.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar", help=PROGRESS_HELP)
     fit.add_argument("--threads", type=int, metavar="N", help=THREADS_HELP)

@@ -67,6 +67,28 @@ def test_harp_fit_passes_its_seed_to_the_fit_and_leaves_the_default_otherwise(mo
     assert seen[0]["seed"] == 3 and "seed" not in seen[1]
 
 
+def test_harp_fit_sets_term_weights_by_name_over_the_defaults(monkeypatch, capsys):
+    import pipeline.fit
+    from pipeline.fit.energy_terms import default_weights
+
+    seen = []
+    monkeypatch.setattr(pipeline.fit, "fit", lambda *args, **options: seen.append(options) or
+                        {"total_seconds": 0.0, "metrics": {}})
+    monkeypatch.setattr("pipeline.fit.outputs.metrics_line", lambda metrics: "")
+    parser = build_parser()
+    for argv in (["fit", "seq", "--out", "a", "--weight", "size_prior=1", "--weight", "texture=0.5"],
+                 ["fit", "seq", "--out", "a"]):
+        args = parser.parse_args(argv)
+        args.run(args)
+    assert seen[0]["weights"] == {**default_weights(), "size_prior": 1.0, "texture": 0.5}
+    assert "weights" not in seen[1]
+    for bad, said in (("no_such_term=1", "no energy term named 'no_such_term'"), ("size_prior=big", "a number"),
+                      ("size_prior=-1", "0 or more"), ("size_prior=nan", "0 or more")):
+        args = parser.parse_args(["fit", "seq", "--out", "a", "--weight", bad])
+        with pytest.raises(SystemExit, match=said):
+            args.run(args)
+
+
 def test_preview_of_the_left_hand(tmp_path):
     assert main(["model", "preview", "--side", "left", "--size", "120", "--out", str(tmp_path / "left.png")]) == 0
     right = tmp_path / "right.png"
