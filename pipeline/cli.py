@@ -76,7 +76,7 @@ def _fit(args):
                  exposure=args.exposure, solve_albedo=args.solve_albedo, budget_seconds=args.budget,
                  validation_frames=args.validation_frames, workers=args.workers, environment=args.environment,
                  specular=args.specular, colour_model=args.colour_model, occlusion=args.occlusion,
-                 restart_lost_frames=args.restart_lost_frames,
+                 restart_lost_frames=args.restart_lost_frames, albedo_facing=args.albedo_facing,
                  **({} if args.seed is None else {"seed": args.seed}),
                  **({} if weights is None else {"weights": weights}))
     print(f"wrote {args.out} in {report['total_seconds']:.0f} s: {metrics_line(report['metrics'])}")
@@ -228,6 +228,10 @@ def build_parser():
                      help="frames the alignment left off their silhouettes (a hand the detector turned over) started "
                           "again from their neighbours' poses: on, or off (default: on a phone-like clip it gained "
                           "0.4-1.3 dB on the frames but moved the hand's size; docs/fit.md)")
+    fit.add_argument("--albedo-facing", choices=("on", "off"), default=None,
+                     help="the final albedo solve weighs each pixel by how squarely it sees the skin, so a texel "
+                          "seen head-on somewhere is not coloured by its grazing views: on, or off (default, until "
+                          "measured on 3 seeds; docs/fidelity.md)")
     fit.add_argument("--weight", action="append", default=None, metavar="NAME=VALUE",
                      help="an energy term's weight (repeatable), e.g. size_prior=1 (the terms and their defaults: "
                           "pipeline/fit/energy_terms.py; 0 switches a term off)")

@@ -10,7 +10,7 @@ import torch
 from pipeline.evaluate.exact_clips import mottled_albedo, write_clip
 from pipeline.fit.problem import build_problem
 from pipeline.fit.settings import settings_for
-from pipeline.fit.albedo_solve import solve_avatar_albedo, solved_albedo
+from pipeline.fit.albedo_solve import _facing, _observations, solve_avatar_albedo, solved_albedo
 from pipeline.init import initialise_sequence
 from pipeline.render.renderer import render
 from pipeline.render.texture import bilinear_texels
@@ -74,6 +74,36 @@ def test_solved_albedo_is_the_albedo_the_frames_were_rendered_with(problem):
     # the rings stay sharp: measured 0.79 of the truth's gradient energy in linear light (error 0.014),
     # 0.81 in display values (error 0.011)
     assert gradient_energy(albedo, read) > 0.75 * gradient_energy(truth, read)
+
+
+def test_pixels_weighted_by_how_squarely_they_see_the_surface_still_solve_the_albedo(problem):
+    """albedo_facing on: the frames' own albedo still comes back (a weighting changes nothing
+    where every frame agrees), and the weights are the cosines the renderer's normals give."""
+    problem, truth = problem
+    facing = dataclasses.replace(problem, settings=dataclasses.replace(problem.settings, albedo_facing="on"))
+    albedo, read = solved_albedo(facing, shadows=False)
+    albedo, read = albedo.numpy(), read.numpy() & (problem.uv_mask.numpy() > 0)
+    assert np.abs(albedo - truth).mean(0)[read].mean() < 0.02
+    with torch.no_grad():
+        seen = _observations(facing, False, 4, TEXTURE)
+        assert _observations(problem, False, 4, TEXTURE).facing is None
+    assert seen.facing is not None and len(seen.facing) == len(seen.colour)
+    assert float(seen.facing.min()) >= 0.0 and float(seen.facing.max()) <= 1.0 and float(seen.facing.mean()) > 0.5
+
+
+def test_facing_is_the_cosine_between_the_normal_and_the_ray_to_the_camera():
+    K = torch.tensor([[100.0, 0, 20], [0, 100.0, 10], [0, 0, 1]], dtype=torch.float64)
+    towards_camera = torch.zeros(1, 20, 40, 3, dtype=torch.float64)
+    towards_camera[..., 2] = -1.0
+    cosine = _facing(towards_camera, K)[0]
+    rows, columns = np.mgrid[0:20, 0:40] + 0.5
+    x, y = (columns - 20) / 100, (rows - 10) / 100
+    assert np.allclose(cosine.numpy(), 1 / np.sqrt(1 + x ** 2 + y ** 2), atol=1e-12)
+    tilted = torch.zeros_like(towards_camera)
+    tilted[..., 0], tilted[..., 2] = np.sin(np.radians(60)), -np.cos(np.radians(60))   # turned 60 degrees about y
+    ray = np.array([x[10, 20], y[10, 20], 1.0]) / np.linalg.norm([x[10, 20], y[10, 20], 1.0])
+    assert float(_facing(tilted, K)[0, 10, 20]) == pytest.approx(-(tilted[0, 10, 20].numpy() @ ray), abs=1e-12)
+    assert float(_facing(-towards_camera, K).max()) == 0.0          # a surface turned away counts nothing
 
 
 def test_detail_finer_than_a_texel_is_solved_on_a_finer_texture(tmp_path_factory):

@@ -29,6 +29,12 @@ colour over every pixel; the solve alternates the two (ENVIRONMENT_ROUNDS), so t
 albedo cannot take up the light's change across the frames that show it, as it can under Adam
 (the appearance stage moves both by small steps).
 
+With `FitSettings.albedo_facing` "on", each pixel's equations weigh by how squarely it sees the
+surface, the cosine between the surface normal and the ray to the camera (`_facing`): a texel seen
+head-on in one frame and at a grazing angle in another takes its colour from the first, where the
+pixel covers the least skin and the rim's light (Fresnel sheen, subsurface glow, the mask's edge)
+counts least; a texel only ever seen at grazing angles still takes theirs.
+
 The specular lobe (formats/specular_lobe.py) adds a white sheen that does not scale with the
 albedo: I = S * albedo + g P, P the lobe's share at the pixel. Its part g P, fixed by the fitted
 geometry, light and lobe, is taken off each pixel's colour before the solve.
@@ -69,7 +75,8 @@ class _Observations:
     """Every usable pixel of the fitted frames: its four texels (flat int32 indices (N, 4)) and
     bilinear weights (N, 4), its shading (N, 3) and colour (N, 3); with an environment light,
     also the shading without it (N, 3, exposure gain included), the gain (N, 3) and the
-    harmonics at the pixel's shading normal (N, 8)."""
+    harmonics at the pixel's shading normal (N, 8); with FitSettings.albedo_facing on, how
+    squarely each pixel sees the surface (N,) in [0, 1] (_facing)."""
     texels: torch.Tensor
     weights: torch.Tensor
     shading: torch.Tensor
@@ -77,6 +84,12 @@ class _Observations:
     base: torch.Tensor | None = None
     gain: torch.Tensor | None = None
     basis: torch.Tensor | None = None
+    facing: torch.Tensor | None = None
+
+    def pixel_weights(self, weights=None):
+        """(N,) the solve's weight of each pixel: `weights` (default 1) times its facing, when on."""
+        weights = torch.ones_like(self.shading[:, 0]) if weights is None else weights
+        return weights if self.facing is None else weights * self.facing
 
     def albedo_at(self, albedo):
         """(N, 3) the albedo each pixel sees (bilinear, as the renderer) for a (3, T, T) albedo."""
@@ -139,7 +152,7 @@ def _solved_in_shading_space(problem, shadows, batch_size, current):
     ambient = problem.avatar.ambient.item()
     if not len(seen.colour):                       # no frame shows a usable pixel of the hand
         return current.clone(), torch.zeros(current.shape[1:], dtype=torch.bool, device=current.device), environment
-    uniform = torch.ones_like(seen.shading[:, 0])
+    uniform = seen.pixel_weights()
     first = _NormalEquations(size, seen, uniform)
     albedo, solved = first.solve(current, ANCHOR * first.data_weight())
     if environment is not None:
@@ -151,6 +164,7 @@ def _solved_in_shading_space(problem, shadows, batch_size, current):
     prior = None
     for _ in range(REWEIGHTINGS):
         weights, clip_variance = _consistency_weights(seen, albedo, size)
+        weights = seen.pixel_weights(weights)
         if environment is not None:
             environment = _solved_environment(seen, albedo, weights, ambient)
             seen = seen.under_environment(environment)
@@ -219,6 +233,7 @@ def _observations(problem, shadows, batch_size, size):
     avatar, clip = problem.avatar, problem.clip
     appearance = dataclasses.replace(avatar.appearance(), albedo=torch.ones_like(avatar.albedo))
     sheen_only = Appearance(torch.zeros_like(avatar.albedo), appearance.normal_map)   # colour = the lobe's share
+    facing_on = problem.settings.albedo_facing == "on"
     parts = []
     for batch in torch.arange(len(problem.frames), device=avatar.albedo.device).split(batch_size):
         vertices, _ = avatar.posed(batch)
@@ -227,7 +242,7 @@ def _observations(problem, shadows, batch_size, size):
         light = dataclasses.replace(light, linear=False)
         occluded = environment is not None and light.occlusion is not None
         outputs = ("rgb", "uv", "alpha") + (() if environment is None else ("shading_normal",)) \
-            + (("lost_light",) if occluded else ())
+            + (("lost_light",) if occluded else ()) + (("normal",) if facing_on else ())
         images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=outputs,
                         appearance=appearance, light=dataclasses.replace(light, environment=None, specular=None),
                         antialiased=False)
@@ -253,11 +268,27 @@ def _observations(problem, shadows, batch_size, size):
                            antialiased=False)["rgb"]
             colour = colour - gain * sheen
         parts.append((images["uv"][usable], shading[usable], colour[usable])
+                     + ((_facing(images["normal"], clip.K[batch])[usable],) if facing_on else ())
                      + (() if environment is None else (base[usable], gain[usable], basis[usable])))
-    uv, shading, colour, *environment_parts = (torch.cat(column) for column in zip(*parts))
+    uv, shading, colour, *rest = (torch.cat(column) for column in zip(*parts))
+    facing = rest.pop(0) if facing_on else None
     rows, columns, weights = bilinear_texels(uv, size)
     return _Observations((rows * size + columns).to(torch.int32), weights, shading, colour,   # int32: memory
-                         *environment_parts)
+                         *rest, facing=facing)
+
+
+def _facing(normals, K):
+    """(B, H, W) the cosine between each pixel's surface normal (B, H, W, 3, camera frame) and the
+    ray from the surface back to the camera through the pixel's centre, at least 0."""
+    batch, height, width = normals.shape[:3]
+    rows, columns = torch.meshgrid(torch.arange(height, device=normals.device, dtype=normals.dtype) + 0.5,
+                                   torch.arange(width, device=normals.device, dtype=normals.dtype) + 0.5,
+                                   indexing="ij")
+    K = K.to(normals.dtype).expand(batch, 3, 3)
+    x = (columns - K[:, 0, 2, None, None]) / K[:, 0, 0, None, None]
+    y = (rows - K[:, 1, 2, None, None]) / K[:, 1, 1, None, None]
+    rays = torch.nn.functional.normalize(torch.stack([x, y, torch.ones_like(x)], dim=-1), dim=-1)
+    return (-(normals * rays).sum(-1)).clamp(min=0.0)
 
 
 @torch.no_grad()

@@ -75,6 +75,9 @@ class FitSettings:
     # and the albedo came nearer the truth, but the hand's size moved (surface 0.68 -> 2.31 and 0.73 -> 0.87 mm,
     # new poses worse: docs/fit.md)
     restart_lost_frames: str = "off"
+    # the albedo solve's pixels weighted by how squarely they see the surface (albedo_solve._facing): "on" |
+    # "off", the default, until measured (docs/fidelity.md)
+    albedo_facing: str = "off"
     # frames kept out of the fit and scored as it runs: the best state is written (validation.py). Off until it
     # is shown to help: with `fast` on the demo clip (3 seeds) it left held-out PSNR level (27.76 dB both), joints
     # 0.11 mm worse, 10% more time; on the sun clip it went back to an earlier state whose surface was 36% worse
@@ -98,6 +101,8 @@ class FitSettings:
             raise ValueError(f"occlusion must be 'on' or 'off', got {self.occlusion!r}")
         if self.restart_lost_frames not in ("on", "off"):
             raise ValueError(f"restart_lost_frames must be 'on' or 'off', got {self.restart_lost_frames!r}")
+        if self.albedo_facing not in ("on", "off"):
+            raise ValueError(f"albedo_facing must be 'on' or 'off', got {self.albedo_facing!r}")
         if not 0.0 < self.final_rate_fraction <= 1.0:
             raise ValueError(f"final_rate_fraction must be in (0, 1] (1: constant rates), "
                              f"got {self.final_rate_fraction}")
