@@ -223,7 +223,9 @@ def build_parser():
     fit.add_argument("--occlusion", choices=("on", "off"), default=None,
                      help="the room light (ambient and environment) held back where the hand itself is in its way, "
                           "between the fingers and in a closing palm: on, or off (default: every point sees the whole room, "
-                          "HARP's light; measured level with off on one demo seed, 3 seeds to go; docs/fidelity.md)")
+                          "HARP's light). On 3 seeds of two clips: frames and joints level, the albedo nearer the "
+                          "truth (a third on the demo), new poses up to 0.6 dB better; costs about 1 s per fitted "
+                          "frame (docs/fidelity.md)")
     fit.add_argument("--restart-lost-frames", choices=("on", "off"), default=None,
                      help="frames the alignment left off their silhouettes (a hand the detector turned over) started "
                           "again from their neighbours' poses: on, or off (default: on a phone-like clip it gained "

@@ -66,9 +66,10 @@ class FitSettings:
     # docs/fidelity.md, "Shading in linear light")
     colour_model: str = "linear"
     # the room light (ambient and environment) held back where the hand itself stands in its way (render/occlusion.py):
-    # "on" | "off" (every point sees the whole room, HARP's light), the default: on the demo clip (Cycles, a uniform
-    # world) "on" without the skin's bounce lost 1.8 dB on the fitted frames, level on the phone-like clip; with the
-    # bounce (occlusion.bounce_radiance) the demo's seed 0 is level with "off": 3 seeds to go (docs/fidelity.md)
+    # "on" | "off" (every point sees the whole room, HARP's light), the default. With the skin's bounce
+    # (occlusion.bounce_radiance), on 3 seeds of the demo and the phone-like clip: the frames and joints level, the
+    # albedo nearer the truth on 5 of 6 (a third on the demo), new poses +0.4-0.6 dB on 4; off for its cost (5
+    # measurements of 0.19 s per fitted frame: about 140 s on a 150-frame clip; docs/fidelity.md)
     occlusion: str = "off"
     # frames the alignment left off their silhouettes started again from their neighbours (lost_frames.py):
     # "on" | "off", the default: on the phone-like clip (2 seeds) the fitted and held-out frames gained 0.4-1.3 dB
