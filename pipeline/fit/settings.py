@@ -68,7 +68,7 @@ class FitSettings:
     # the room light (ambient and environment) held back where the hand itself stands in its way (render/occlusion.py):
     # "on" | "off" (every point sees the whole room, HARP's light), the default. With the skin's bounce
     # (occlusion.bounce_radiance), on 3 seeds of the demo and the phone-like clip: the frames and joints level, the
-    # albedo nearer the truth on 5 of 6 (a third on the demo), new poses +0.4-0.6 dB on 4; off for its cost (5
+    # albedo nearer the truth on 5 of 6 (a third on the demo), new poses +0.4-0.7 dB on 5; off for its cost (5
     # measurements of 0.19 s per fitted frame: about 140 s on a 150-frame clip; docs/fidelity.md)
     occlusion: str = "off"
     # frames the alignment left off their silhouettes started again from their neighbours (lost_frames.py):
