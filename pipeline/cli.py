@@ -232,8 +232,8 @@ def build_parser():
                           "0.4-1.3 dB on the frames but moved the hand's size; docs/fit.md)")
     fit.add_argument("--albedo-facing", choices=("on", "off"), default=None,
                      help="the final albedo solve weighs each pixel by how squarely it sees the skin, so a texel "
-                          "seen head-on somewhere is not coloured by its grazing views: on, or off (default, until "
-                          "measured on 3 seeds; docs/fidelity.md)")
+                          "seen head-on somewhere is not coloured by its grazing views: on, or off (default: on one "
+                          "phone-like seed it lost 0.3 dB held out, the albedo no nearer the truth; docs/fidelity.md)")
     fit.add_argument("--weight", action="append", default=None, metavar="NAME=VALUE",
                      help="an energy term's weight (repeatable), e.g. size_prior=1 (the terms and their defaults: "
                           "pipeline/fit/energy_terms.py; 0 switches a term off)")

@@ -77,7 +77,8 @@ class FitSettings:
     # new poses worse: docs/fit.md)
     restart_lost_frames: str = "off"
     # the albedo solve's pixels weighted by how squarely they see the surface (albedo_solve._facing): "on" |
-    # "off", the default, until measured (docs/fidelity.md)
+    # "off", the default: on the phone-like clip's seed 0 it lost 0.3 dB held out and its albedo was no nearer
+    # the truth (one seed; docs/fidelity.md)
     albedo_facing: str = "off"
     # frames kept out of the fit and scored as it runs: the best state is written (validation.py). Off until it
     # is shown to help: with `fast` on the demo clip (3 seeds) it left held-out PSNR level (27.76 dB both), joints
