@@ -74,7 +74,8 @@ class FitSettings:
     # frames the alignment left off their silhouettes started again from their neighbours (lost_frames.py):
     # "on" | "off", the default: on the phone-like clip (2 seeds) the fitted and held-out frames gained 0.4-1.3 dB
     # and the albedo came nearer the truth, but the hand's size moved (surface 0.68 -> 2.31 and 0.73 -> 0.87 mm,
-    # new poses worse: docs/fit.md)
+    # new poses worse); with the size held (energy_terms size_prior), 3 seeds: held out +0.76 dB, the surface still
+    # worse on 2 (docs/fit.md)
     restart_lost_frames: str = "off"
     # the albedo solve's pixels weighted by how squarely they see the surface (albedo_solve._facing): "on" |
     # "off", the default: on the phone-like clip's seed 0 it lost 0.3 dB held out and its albedo was no nearer
