@@ -29,11 +29,7 @@ from pipeline.detection.hand_masks import screened_masks  # noqa: E402
 from pipeline.detection.mediapipe_hands import detect_keypoints  # noqa: E402
 from pipeline.formats import sequence_folder as seq  # noqa: E402
 from pipeline.metrics import mask_iou  # noqa: E402
-from pipeline.sequence_import import AUTO_MASK_SIZE  # noqa: E402
-
-
-def _at_mask_size(image, scale, interpolation):
-    return image if scale == 1.0 else cv2.resize(image, None, fx=scale, fy=scale, interpolation=interpolation)
+from pipeline.sequence_import import mask_size_frames  # noqa: E402
 
 
 def score_sequence(folder, step=1, reference=None):
@@ -44,9 +40,10 @@ def score_sequence(folder, step=1, reference=None):
     else:
         truth_paths = sorted(Path(reference).glob("[0-9]*.png"))
         picks = [int(path.stem) for path in truth_paths]
-    scale = min(1.0, AUTO_MASK_SIZE / max(info.width, info.height))
-    frames = [_at_mask_size(seq.read_rgb(seq.frame_path(folder, info, index)), scale, cv2.INTER_AREA) for index in picks]
-    truths = [_at_mask_size(seq.read_mask(path).astype(np.float32), scale, cv2.INTER_AREA) > 0.5 for path in truth_paths]
+    frames, _, _ = mask_size_frames((index, seq.read_rgb(seq.frame_path(folder, info, index))) for index in picks)
+    height, width = frames[0].shape[:2]
+    truths = [cv2.resize(seq.read_mask(path).astype(np.float32), (width, height), interpolation=cv2.INTER_AREA) > 0.5
+              for path in truth_paths]
     start = time.perf_counter()
     keypoints = detect_keypoints(frames, info.hand_side)
     masks, _ = screened_masks(frames, keypoints, info.fps)

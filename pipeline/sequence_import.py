@@ -349,7 +349,7 @@ class AutoMasks:
         from .detection.mediapipe_hands import detect_keypoints
 
         self.path = frames.path
-        small, self.scale, self.size = _small_frames(frames)
+        small, self.scale, self.size = mask_size_frames(frames)
         self.side = side = _side_of(small, side, log)
         log(f"making masks from the footage: MediaPipe landmarks in {len(small)} frames")
         self.keypoints = keypoints = detect_keypoints(small, side)
@@ -408,7 +408,7 @@ def _landmarks(frames, mask_source, kept, side, log):
     if isinstance(mask_source, AutoMasks):     # the masks were made from these very landmarks
         keypoints, scale, side = mask_source.keypoints, mask_source.scale, mask_source.side
     else:
-        small, scale, _ = _small_frames(frames)
+        small, scale, _ = mask_size_frames(frames)
         side = _side_of(small, side, log)
         try:
             keypoints = detect_keypoints(small, side)
@@ -418,9 +418,9 @@ def _landmarks(frames, mask_source, kept, side, log):
     return np.asarray(keypoints.points)[kept] / scale, np.asarray(keypoints.detected)[kept], side
 
 
-def _small_frames(frames):
-    """(the frames at most AUTO_MASK_SIZE pixels on their long side, that scale, (width, height)
-    of the frames)."""
+def mask_size_frames(frames):
+    """(the frames, an iterable of (index, RGB image), at most AUTO_MASK_SIZE pixels on their long
+    side: the size masks are made at; that scale; (width, height) of the frames)."""
     import cv2
 
     small, scale, size = [], 1.0, None
