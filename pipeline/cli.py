@@ -77,6 +77,7 @@ def _fit(args):
                  validation_frames=args.validation_frames, workers=args.workers, environment=args.environment,
                  specular=args.specular, colour_model=args.colour_model, occlusion=args.occlusion,
                  restart_lost_frames=args.restart_lost_frames, albedo_facing=args.albedo_facing,
+                 light_search=args.light_search,
                  **({} if args.seed is None else {"seed": args.seed}),
                  **({} if weights is None else {"weights": weights}))
     print(f"wrote {args.out} in {report['total_seconds']:.0f} s: {metrics_line(report['metrics'])}")
@@ -230,6 +231,10 @@ def build_parser():
                      help="frames the alignment left off their silhouettes (a hand the detector turned over) started "
                           "again from their neighbours' poses: on, or off (default: on a phone-like clip it gained "
                           "0.4-1.3 dB on the frames but moved the hand's size; docs/fit.md)")
+    fit.add_argument("--light-search", choices=("on", "off"), default=None,
+                     help="before the light is fitted, its direction and the ambient ratio searched over the whole "
+                          "sphere, each candidate scored by how well one colour per texel explains the frames: on "
+                          "(default), or off (the light starts in front of the hand, above the camera)")
     fit.add_argument("--albedo-facing", choices=("on", "off"), default=None,
                      help="the final albedo solve weighs each pixel by how squarely it sees the skin, so a texel "
                           "seen head-on somewhere is not coloured by its grazing views: on, or off (default: on one "

@@ -70,6 +70,7 @@ class FitState:
     environment: dict | None = None     # `auto` environment light, once decided: on, relative_strength
     specular: dict | None = None        # `auto` specular lobe, once decided: on, share, highlight, roughness, level
     restarted: dict | None = None       # lost_frames.restart_lost_frames' figures, once it has run (after the alignment)
+    light_search: dict | None = None    # light_search.search_light's figures, once it has run (before the light moves)
 
     @classmethod
     def fresh(cls, schedule: Schedule, shadows="auto"):

@@ -26,6 +26,7 @@ from .checkpoint import CHECKPOINT_FILE, CHECKPOINT_VERSION, Checkpoint, FitStat
 from .budget import BudgetKeeper
 from .estimate import FitEstimate, active_stages, measure_step_costs
 from .frames import held_out_frames, select_frames, validation_frames
+from .light_search import search_light
 from .lost_frames import LOST_IOU, anchor_restarted, restart_lost_frames
 from .outputs import masked_l1, write_outputs
 from .problem import FitError, FitProblem, build_problem
@@ -158,6 +159,9 @@ def _run(setup: FitSetup, job, out, observers, started):
                 validator.new_stage()
             if optimiser_state is None and run.stage.appearance:    # shaded: the room light's occlusion measured
                 problem.avatar.measure_occlusion(exact=True)        # at its start (so a resumed fit does the same)
+                if run.has_work and state.light_search is None and settings.light_search == "on" \
+                        and "light_position" not in problem.frozen:
+                    _search_light(problem, state, reporter)
             optimiser_state = None
             while run.has_work and not run.finished:
                 if interrupted.is_set():
@@ -199,6 +203,23 @@ def _restart_lost_frames(problem, state, reporter):
         reporter.log(f"frames the alignment left off their silhouettes (IoU under {LOST_IOU}): {tried}; "
                      + (f"started again from their neighbours' poses: {gains}" if restarted
                         else "their neighbours' poses cover them no better: kept"))
+
+
+def _search_light(problem, state, reporter):
+    """Before the first stage that fits the light: the light searched over the sphere
+    (light_search.py), said in one line."""
+    state.light_search = search_light(problem)
+    if state.light_search:
+        before, after = state.light_search["before"], state.light_search["after"]
+        where = "kept" if not state.light_search["moved"] else \
+            f"moved to {_position(after['position'])}, ambient {after['ambient']:.2f} (residual {after['residual']:.4f})"
+        reporter.log(f"light search: {state.light_search['candidates']} lights scored by one colour per texel; "
+                     f"the starting one at {_position(before['position'])}, ambient {before['ambient']:.2f} "
+                     f"(residual {before['residual']:.4f}): {where}")
+
+
+def _position(values):
+    return "(" + ", ".join(f"{value:.2f}" for value in values) + ") m"
 
 
 def _stage_number(schedule, index):

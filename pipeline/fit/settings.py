@@ -77,6 +77,9 @@ class FitSettings:
     # new poses worse); with the size held (energy_terms size_prior), 3 seeds: held out +0.76 dB, the surface still
     # worse on 2 (docs/fit.md)
     restart_lost_frames: str = "off"
+    # the point light's direction and the ambient ratio searched over the whole sphere before the first stage that
+    # fits them (light_search.py): "on" | "off" (the light starts in front of the hand, above the camera)
+    light_search: str = "on"
     # the albedo solve's pixels weighted by how squarely they see the surface (albedo_solve._facing): "on" |
     # "off", the default: on the phone-like clip's seed 0 it lost 0.3 dB held out and its albedo was no nearer
     # the truth (one seed; docs/fidelity.md)
@@ -104,6 +107,8 @@ class FitSettings:
             raise ValueError(f"occlusion must be 'on' or 'off', got {self.occlusion!r}")
         if self.restart_lost_frames not in ("on", "off"):
             raise ValueError(f"restart_lost_frames must be 'on' or 'off', got {self.restart_lost_frames!r}")
+        if self.light_search not in ("on", "off"):
+            raise ValueError(f"light_search must be 'on' or 'off', got {self.light_search!r}")
         if self.albedo_facing not in ("on", "off"):
             raise ValueError(f"albedo_facing must be 'on' or 'off', got {self.albedo_facing!r}")
         if not 0.0 < self.final_rate_fraction <= 1.0:
@@ -143,6 +148,7 @@ class FitSettings:
         values.setdefault("colour_model", "display")     # saved before the colour model was a choice: display
         values.setdefault("occlusion", "off")             # saved before the room light's occlusion
         values.setdefault("restart_lost_frames", "off")   # saved before lost frames were started again
+        values.setdefault("light_search", "off")          # saved before the light was searched
         if "steps" in values:
             values["steps"] = tuple(values["steps"])
         return cls(**values)
