@@ -12,8 +12,13 @@ normals in different frames must change in brightness as the light's shading say
 albedo. Per candidate, each texel's colour is solved in least squares (TEXELS x TEXELS texels,
 so that each pools a few pixels of each frame), and the score is the residual's share of the
 frames' energy. The candidates: CANDIDATES directions at the current light's distance from the
-hand's centre, each with every ambient ratio of AMBIENTS, and the current light itself; the best
-replaces the current one only where it scores at least MIN_GAIN lower.
+hand's centre (at least MIN_DISTANCE: a light nearer than a few hand lengths shines from a
+different direction on each finger, which the fit then has to keep), each with every ambient
+ratio of AMBIENTS, and the current light itself; the best replaces the current one only where it
+scores at least MIN_GAIN lower. Where it does, the texels' colours it solved become the starting
+albedo (upsampled to the texture, texels no frame showed at the albedo's mean): left at its flat
+start, the albedo's light palm and dark back pulled the light away again in the joint stage
+(the phone-like clip's seed 0: searched to the window, fitted to above the hand).
 
 In the linear colour model the frames are decoded first (the shading multiplies linear light);
 the exposure gains (1 at this point unless resumed) are divided out. The environment light, the
@@ -24,7 +29,7 @@ from __future__ import annotations
 
 import torch
 
-from ..formats.colour_model import srgb_to_linear
+from ..formats.colour_model import linear_to_srgb, srgb_to_linear
 from ..formats.environment_light import sphere_directions
 from ..render.renderer import render
 
@@ -33,6 +38,7 @@ AMBIENTS = (0.15, 0.3, 0.5, 0.7)     # ambient ratios tried with each
 TEXELS = 64                          # the texel grid's side the colours are pooled on
 FRAMES = 24                          # fitted frames used at most (spread over the clip)
 BATCH = 6
+MIN_DISTANCE = 0.5                   # metres from the hand's centre, at least
 MIN_GAIN = 0.1                       # the share by which the best candidate must beat the current light
 
 
@@ -51,7 +57,7 @@ def search_light(problem) -> dict:
     current = avatar.light_position.detach().to(dtype)
     ambient = float(avatar.ambient.item())
     centre = positions.mean(0)
-    distance = (current - centre).norm().clamp(min=0.1)
+    distance = (current - centre).norm().clamp(min=MIN_DISTANCE)
     directions = torch.as_tensor(sphere_directions(CANDIDATES), dtype=dtype, device=device)
     before = _residual(positions, normals, colours, texels, current, ambient)
     best = (before, current, ambient)
@@ -65,6 +71,8 @@ def search_light(problem) -> dict:
     if moved:
         avatar.light_position.copy_(best[1].to(avatar.light_position.dtype))
         avatar.ambient_logit.copy_(torch.logit(torch.tensor(best[2], dtype=avatar.ambient_logit.dtype)))
+        avatar.albedo.copy_(_starting_albedo(avatar, *_texel_colours(positions, normals, colours, texels,
+                                                                       best[1], best[2])))
     kept = best if moved else (before, current, ambient)
     return {"before": _figures(before, current, ambient), "after": _figures(*kept), "moved": bool(moved),
             "candidates": CANDIDATES * len(AMBIENTS) + 1}
@@ -115,15 +123,35 @@ def _camera_points(depth, K):
     return torch.stack([x, y, torch.ones_like(x)], dim=-1) * finite[..., None]
 
 
-def _residual(positions, normals, colours, texels, light, ambient) -> torch.Tensor:
-    """The share of the colours' energy that one colour per texel leaves unexplained under the
-    shading a + (1 - a) max(0, n . l) of a point light at `light` and ambient ratio a."""
+def _texel_colours(positions, normals, colours, texels, light, ambient):
+    """((TEXELS * TEXELS, 3) each texel's colour in least squares under the shading
+    a + (1 - a) max(0, n . l) of a point light at `light` and ambient ratio a, (N, 1) that shading,
+    (TEXELS * TEXELS,) bool: the texels some pixel shows)."""
     to_light = torch.nn.functional.normalize(light - positions, dim=-1)
     shading = (ambient + (1 - ambient) * (normals * to_light).sum(-1).clamp(min=0))[:, None]
     size = TEXELS * TEXELS
     numerator = torch.zeros(size, 3, dtype=colours.dtype, device=colours.device).index_add_(0, texels, colours * shading)
     denominator = torch.zeros(size, 1, dtype=colours.dtype, device=colours.device).index_add_(0, texels,
                                                                                               shading * shading)
-    colour_of_texel = numerator / denominator.clamp(min=1e-12)
+    return numerator / denominator.clamp(min=1e-12), shading, denominator[:, 0] > 0
+
+
+def _residual(positions, normals, colours, texels, light, ambient) -> torch.Tensor:
+    """The share of the colours' energy that one colour per texel (_texel_colours) leaves unexplained."""
+    colour_of_texel, shading, _ = _texel_colours(positions, normals, colours, texels, light, ambient)
     unexplained = colours - colour_of_texel[texels] * shading
     return unexplained.square().sum() / colours.square().sum().clamp(min=1e-12)
+
+
+def _starting_albedo(avatar, colour_of_texel, _, seen):
+    """(3, T, T) the avatar's starting albedo from the texels' colours (TEXELS * TEXELS, 3) where
+    `seen`, their mean elsewhere, upsampled to the avatar's texture and, in the linear colour
+    model, encoded to sRGB as the avatar keeps its albedo."""
+    colour_of_texel = colour_of_texel.clamp(0, 1)
+    mean = colour_of_texel[seen].mean(0) if bool(seen.any()) else colour_of_texel.mean(0)
+    grid = torch.where(seen[:, None], colour_of_texel, mean).t().reshape(3, TEXELS, TEXELS)
+    size = avatar.albedo.shape[-1]
+    albedo = torch.nn.functional.interpolate(grid[None], size=(size, size), mode="bilinear", align_corners=False)[0]
+    if avatar.linear_light:
+        albedo = linear_to_srgb(albedo)
+    return albedo.clamp(0, 1).to(avatar.albedo.dtype)
