@@ -1,4 +1,4 @@
-"""Bad geometry never produces NaN or Inf, in images or in gradients."""
+"""Bad geometry never produces NaN or Inf, in images or in gradients; the camera's pixel rays invert its projection."""
 import numpy as np
 import pytest
 import torch
@@ -102,3 +102,16 @@ def test_unknown_output_is_refused():
     points, mesh = sphere((0.0, 0.0, 0.5))
     with pytest.raises(ValueError, match="unknown render outputs"):
         render(points, mesh, K, SIZE, SIZE, outputs=("alpha", "specular"))
+
+
+def test_pixel_rays_are_the_projections_inverse():
+    """A point at depth z along a pixel's ray projects onto that pixel's centre, per frame's K."""
+    from pipeline.render.rasterize import pixel_rays, project
+    K = torch.tensor([[[100.0, 0, 31.5], [0, 120.0, 20.0], [0, 0, 1]],
+                      [[80.0, 0, 10.0], [0, 80.0, 12.5], [0, 0, 1]]], dtype=torch.float64)
+    rays = pixel_rays(K, 2, 24, 40, torch.float64, "cpu")
+    assert rays.shape == (2, 24, 40, 3) and torch.all(rays[..., 2] == 1)
+    points = rays * torch.linspace(0.2, 3.0, 24, dtype=torch.float64)[None, :, None, None]
+    pixels = project(points.reshape(2, -1, 3), K).reshape(2, 24, 40, 2)
+    rows, columns = torch.meshgrid(torch.arange(24.0) + 0.5, torch.arange(40.0) + 0.5, indexing="ij")
+    assert torch.allclose(pixels, torch.stack([columns, rows], -1).double().expand_as(pixels), atol=1e-9)

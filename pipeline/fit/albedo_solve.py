@@ -48,6 +48,7 @@ import torch
 
 from ..formats.colour_model import linear_to_srgb, srgb_to_linear
 from ..formats.environment_light import relative_strength
+from ..render.rasterize import pixel_rays
 from ..render.renderer import Appearance, render
 from ..render.shading import environment_basis_values, sphere_radiance_basis
 from ..render.texture import bilinear_texels
@@ -280,14 +281,7 @@ def _observations(problem, shadows, batch_size, size):
 def _facing(normals, K):
     """(B, H, W) the cosine between each pixel's surface normal (B, H, W, 3, camera frame) and the
     ray from the surface back to the camera through the pixel's centre, at least 0."""
-    batch, height, width = normals.shape[:3]
-    rows, columns = torch.meshgrid(torch.arange(height, device=normals.device, dtype=normals.dtype) + 0.5,
-                                   torch.arange(width, device=normals.device, dtype=normals.dtype) + 0.5,
-                                   indexing="ij")
-    K = K.to(normals.dtype).expand(batch, 3, 3)
-    x = (columns - K[:, 0, 2, None, None]) / K[:, 0, 0, None, None]
-    y = (rows - K[:, 1, 2, None, None]) / K[:, 1, 1, None, None]
-    rays = torch.nn.functional.normalize(torch.stack([x, y, torch.ones_like(x)], dim=-1), dim=-1)
+    rays = torch.nn.functional.normalize(pixel_rays(K, *normals.shape[:3], normals.dtype, normals.device), dim=-1)
     return (-(normals * rays).sum(-1)).clamp(min=0.0)
 
 

@@ -31,6 +31,7 @@ import torch
 
 from ..formats.colour_model import linear_to_srgb, srgb_to_linear
 from ..formats.environment_light import sphere_directions
+from ..render.rasterize import pixel_rays
 from ..render.renderer import render
 
 CANDIDATES = 64                      # directions (a Fibonacci lattice over the sphere)
@@ -113,14 +114,10 @@ def _pixels(problem):
 
 
 def _camera_points(depth, K):
-    """(B, H, W, 3) the camera-frame points at each pixel centre's depth (B, H, W) for K (B, 3, 3)."""
-    batch, height, width = depth.shape
-    rows, columns = torch.meshgrid(torch.arange(height, dtype=depth.dtype, device=depth.device) + 0.5,
-                                   torch.arange(width, dtype=depth.dtype, device=depth.device) + 0.5, indexing="ij")
-    x = (columns - K[:, 0, 2, None, None]) / K[:, 0, 0, None, None]
-    y = (rows - K[:, 1, 2, None, None]) / K[:, 1, 1, None, None]
+    """(B, H, W, 3) the camera-frame points at each pixel centre's depth (B, H, W) for K (B, 3, 3)
+    (zeros where nothing is drawn)."""
     finite = torch.where(torch.isfinite(depth), depth, torch.zeros_like(depth))
-    return torch.stack([x, y, torch.ones_like(x)], dim=-1) * finite[..., None]
+    return pixel_rays(K, *depth.shape, depth.dtype, depth.device) * finite[..., None]
 
 
 def _texel_colours(positions, normals, colours, texels, light, ambient):

@@ -52,6 +52,17 @@ def project(points, K):
     return torch.stack([fx * xy[..., 0] + cx, fy * xy[..., 1] + cy], dim=-1)
 
 
+def pixel_rays(K, batch, height, width, dtype, device):
+    """(B, H, W, 3) the camera-frame direction (x, y, 1) through each pixel's centre under K
+    ((B, 3, 3) or (3, 3)): a point at depth z on it is z times it; project()'s inverse."""
+    K = (K if K.dim() == 3 else K.unsqueeze(0)).to(dtype).expand(batch, 3, 3)
+    rows, columns = torch.meshgrid(torch.arange(height, dtype=dtype, device=device) + 0.5,
+                                   torch.arange(width, dtype=dtype, device=device) + 0.5, indexing="ij")
+    x = (columns - K[:, 0, 2, None, None]) / K[:, 0, 0, None, None]
+    y = (rows - K[:, 1, 2, None, None]) / K[:, 1, 1, None, None]
+    return torch.stack([x, y, torch.ones_like(x)], dim=-1)
+
+
 def front_facing(points, faces):
     """(B, F) bool: the face's outward normal points towards the camera at the origin."""
     v0, v1, v2 = (points.index_select(1, faces[:, k]) for k in range(3))
