@@ -63,6 +63,7 @@ def _fit(args):
     configure_threads(args.threads)
     from .fit import fit
     from .fit.outputs import metrics_line
+    from .fit.progress import duration_text
 
     weights = _term_weights(args.weight)
     observers = []
@@ -80,7 +81,10 @@ def _fit(args):
                  light_search=args.light_search,
                  **({} if args.seed is None else {"seed": args.seed}),
                  **({} if weights is None else {"weights": weights}))
-    print(f"wrote {args.out} in {report['total_seconds']:.0f} s: {metrics_line(report['metrics'])}")
+    wall = report.get("wall_seconds")
+    took = f"{duration_text(wall)} ({report['total_seconds']:.0f} s in its stages)" if wall is not None else \
+        f"{report['total_seconds']:.0f} s"
+    print(f"wrote {args.out} in {took}: {metrics_line(report['metrics'])}")
 
 
 def _plot(args):

@@ -10,7 +10,9 @@ import torch
 from pipeline.evaluate.exact_clips import mottled_albedo, write_clip
 from pipeline.fit.problem import build_problem
 from pipeline.fit.settings import settings_for
-from pipeline.fit.albedo_solve import _facing, _observations, solve_avatar_albedo, solved_albedo
+import pipeline.fit.albedo_solve as albedo_solve
+from pipeline.fit.albedo_solve import (STENCIL, _facing, _NormalEquations, _Observations, _observations,
+                                       solve_avatar_albedo, solved_albedo)
 from pipeline.init import initialise_sequence
 from pipeline.render.renderer import render
 from pipeline.render.texture import bilinear_texels
@@ -356,3 +358,45 @@ def test_the_realisable_room_term_is_zero_for_a_room_that_shines_and_pulls_a_dar
     assert coefficients.grad[1].min() > 0                               # less of the band: less dark below
     assert torch.autograd.gradcheck(lambda c: environment_realisable_loss(c, torch.tensor(0.3, dtype=torch.float64)),
                                     (coefficients.detach().clone().requires_grad_(),))
+
+
+def test_the_normal_equations_are_the_dense_least_squares_system_of_their_pixels(monkeypatch):
+    """The stencil, right-hand side and coverage gathered in chunks equal the normal equations
+    written out densely from their definition: for each pixel p and channel, the row
+    r_p = S_p * (bilinear weights at its four texels), A = sum_p weight_p r_p' r_p and
+    b = sum_p weight_p r_p' I_p; texels at the grid's edges and repeated texels included."""
+    size, count = 5, 700
+    generator = torch.Generator().manual_seed(3)
+    rows = torch.randint(0, size, (count,), generator=generator)
+    columns = torch.randint(0, size, (count,), generator=generator)
+    # the four texels of a bilinear lookup, clamped at the grid's edges (so some repeat)
+    below, right = (rows + 1).clamp(max=size - 1), (columns + 1).clamp(max=size - 1)
+    texels = torch.stack([rows * size + columns, rows * size + right, below * size + columns,
+                          below * size + right], 1).to(torch.int32)
+    weights = torch.rand(count, 4, generator=generator, dtype=torch.float64)
+    weights = weights / weights.sum(1, keepdim=True)
+    shading = torch.rand(count, 3, generator=generator, dtype=torch.float64)
+    colour = torch.rand(count, 3, generator=generator, dtype=torch.float64)
+    pixel_weight = torch.rand(count, generator=generator, dtype=torch.float64)
+    seen = _Observations(texels, weights, shading, colour)
+
+    monkeypatch.setattr(albedo_solve, "PIXEL_CHUNK", 64)        # several chunks, the last one short
+    equations = _NormalEquations(size, seen, pixel_weight)
+
+    for channel in range(3):
+        design = torch.zeros(count, size * size, dtype=torch.float64)
+        design.index_put_((torch.arange(count)[:, None].expand(-1, 4), texels.long()),
+                          shading[:, channel, None] * weights, accumulate=True)
+        dense = design.t() @ (design * pixel_weight[:, None])
+        rhs = design.t() @ (pixel_weight * colour[:, channel])
+        stencil = equations.matrix[channel].view(size, size, len(STENCIL))
+        gathered = torch.zeros_like(dense)
+        for texel in range(size * size):
+            row, column = divmod(texel, size)
+            for index, (dy, dx) in enumerate(STENCIL):
+                if 0 <= row + dy < size and 0 <= column + dx < size:
+                    gathered[texel, (row + dy) * size + column + dx] += stencil[row, column, index]
+        assert torch.allclose(gathered, dense, atol=1e-12)
+        assert torch.allclose(equations.rhs[channel], rhs, atol=1e-12)
+    coverage = torch.zeros(size * size, dtype=torch.float64).index_add_(0, texels.flatten().long(), weights.flatten())
+    assert torch.allclose(equations.coverage, coverage, atol=1e-12)

@@ -38,7 +38,10 @@ def test_fit_writes_a_complete_avatar(tiny_clip, tmp_path):
     assert report["albedo_solve"]["solved_fraction"] > 0.1       # the albedo solve runs by default
     scores = report["metrics"]
     assert all(np.isfinite(scores["psnr"])) and 0 < scores["silhouette_iou_min"] <= 1
-    assert json.loads((out / "report.json").read_text())["stage_seconds"]["geometry"] > 0
+    written = json.loads((out / "report.json").read_text())
+    assert written["stage_seconds"]["geometry"] > 0
+    # the whole run's time holds the stages' and what came after them (the albedo solve, the outputs)
+    assert written["wall_seconds"] > written["total_seconds"] + written["output_seconds"]
     # every texel outside the charts carries its nearest chart texel's value (filtering at the
     # seams mixes in only the hand's), in the albedo and the normal map alike
     from pipeline.fit.texture_fill import extend_outside

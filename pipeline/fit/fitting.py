@@ -30,7 +30,7 @@ from .light_search import search_light
 from .lost_frames import LOST_IOU, anchor_restarted, restart_lost_frames
 from .outputs import masked_l1, write_outputs
 from .problem import FitError, FitProblem, build_problem
-from .progress import Progress
+from .progress import Progress, duration_text
 from .schedule import SHADOWS_DECIDED_IN, StageKind, step_kind
 from .settings import settings_for
 from .specular_share import specular_share
@@ -140,6 +140,7 @@ def _run(setup: FitSetup, job, out, observers, started):
     validator = Validator(problem, validation) if len(validation) else None
     saver = _CheckpointSaver(out / CHECKPOINT_FILE, problem, validator)
     state, generator, optimiser_state = saver.resume() if job.resume else saver.fresh()
+    measured_before = state.measure_seconds
     active = active_stages(problem, settings.schedule())
     costs = measure_step_costs(problem, state, active)     # the calibration step
     budget = None if settings.budget_seconds is None else \
@@ -189,7 +190,8 @@ def _run(setup: FitSetup, job, out, observers, started):
             saver.save(state, None, generator)
         _after_the_stages(problem, state, reporter, lambda: saver.save(state, None, generator), validator)
         clock.observe(observers, "end", problem)
-    return write_outputs(out, problem, state, held_out, estimate=estimate.report(), validation_frames=validation)
+    return write_outputs(out, problem, state, held_out, estimate=estimate.report(), validation_frames=validation,
+                         elapsed=lambda: time.perf_counter() - started - (state.measure_seconds - measured_before))
 
 
 def _restart_lost_frames(problem, state, reporter):
@@ -312,7 +314,7 @@ def _opening_line(problem, preset, estimate):
             f"perceptual term {problem.perceptual_name}, exposure gains {problem.exposure_note}"
             + (f"; {problem.mask_cut_frames} masks end mid-forearm (a sleeve?): the silhouette beyond that line is "
                "not compared" if problem.mask_cut_frames else "")
-            + f"; expected time {_duration(estimate.expected_seconds)} on {problem.device} "
+            + f"; expected time {duration_text(estimate.expected_seconds)} on {problem.device} "
             + (f"(step costs measured in {estimate.costs.calibration_seconds:.0f} s)" if estimate.costs.calibrated
                else "(a small fit: step costs not measured)")
             + (_short_budget_note(estimate.budget, preset) if estimate.budget is not None and estimate.budget.too_short
@@ -321,14 +323,10 @@ def _opening_line(problem, preset, estimate):
 
 def _short_budget_note(budget, preset):
     lighter = {"full": "balanced or fast", "balanced": "fast"}.get(preset)
-    return (f"; the budget leaves the stages {_duration(max(0.0, budget.stage_seconds))} of the "
-            f"{_duration(budget.needed_seconds)} that preset {preset} needs at the least on this clip, so every "
+    return (f"; the budget leaves the stages {duration_text(max(0.0, budget.stage_seconds))} of the "
+            f"{duration_text(budget.needed_seconds)} that preset {preset} needs at the least on this clip, so every "
             "stage is cut short" + (f": preset {lighter} would use the time better" if lighter
                                     else ": a longer budget or fewer frames would help"))
-
-
-def _duration(seconds):
-    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.1f} min"
 
 
 def _decide_shadows(problem, run, reporter):

@@ -100,11 +100,13 @@ def metrics_line(scores):
             f"MS-SSIM {scores.get('ms_ssim_mean', float('nan')):.3f}")
 
 
-def write_outputs(out, problem, state, held_out=(), estimate=None, validation_frames=()):
+def write_outputs(out, problem, state, held_out=(), estimate=None, validation_frames=(), elapsed=None):
     """The avatar folder, report.json, fit_grid.png and overlay.mp4 of a finished fit; returns
     the report. `held_out` are the sequence frames left out for evaluation; `estimate` is the
     fit's time estimate and its trace (estimate.FitEstimate.report); `validation_frames` those
-    kept out to score the fit as it ran (their checks are in `state.validation`)."""
+    kept out to score the fit as it ran (their checks are in `state.validation`); `elapsed()`
+    the seconds the fit has taken so far in this process, the observers' measuring left out
+    (report.json's wall_seconds)."""
     out = Path(out)
     start = time.time()
     avatar, clip, settings = problem.avatar, problem.clip, problem.settings
@@ -139,6 +141,8 @@ def write_outputs(out, problem, state, held_out=(), estimate=None, validation_fr
     }
     if estimate is not None:
         report["estimate"] = estimate
+    if elapsed is not None:
+        report["wall_seconds"] = elapsed()
     if len(held_out):
         report[HELD_OUT_FRAMES] = [int(i) for i in held_out]
     if len(validation_frames):

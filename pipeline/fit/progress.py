@@ -80,6 +80,11 @@ class Progress:
         self.close()
 
 
+def duration_text(seconds):
+    """A duration as a log line gives it: "75 s", "6.2 min"."""
+    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.1f} min"
+
+
 def _clock(seconds):
     """H:MM:SS or M:SS."""
     seconds = max(0, int(round(seconds)))

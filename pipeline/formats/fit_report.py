@@ -3,7 +3,10 @@ of the format). Written by `harp fit` into the avatar folder, read by `harp eval
 study and the Blender add-on.
 
     sequence, frames (sequence indices fitted), held_out_frames (if any), preset,
-    stage_seconds {stage: s}, total_seconds, measure_seconds, output_seconds,
+    stage_seconds {stage: s}, total_seconds (the stages' seconds), measure_seconds (the anytime
+    curve's measuring, not fit time), output_seconds, wall_seconds (the whole run in its process,
+    setting up, the work after the stages and the outputs included, measuring left out; absent
+    in reports from before it),
     final_losses {stage: {loss, terms...}}, metrics (per-frame and mean image scores),
     shadows, events, perceptual_term, ambient, light_position, appearance
 """
