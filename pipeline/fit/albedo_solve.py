@@ -269,9 +269,10 @@ def _observations(problem, shadows, batch_size, size):
         drawn = linear_to_srgb(shading) if linear else shading   # an albedo of 1's values in the frame
         usable = usable & (drawn.min(-1).values > MIN_SHADING)
         if specular is not None:
+            # the lobe's highlight and its sheen of the room (at the light's environment as it stands: the
+            # environment solve below does not move it)
             sheen = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=("rgb",),
-                           appearance=sheen_only, light=dataclasses.replace(light, environment=None),
-                           antialiased=False)["rgb"]
+                           appearance=sheen_only, light=light, antialiased=False)["rgb"]
             colour = colour - gain * sheen
         parts.append((images["uv"][usable], shading[usable], colour[usable])
                      + ((_facing(images["normal"], clip.K[batch])[usable],) if facing_on else ())

@@ -4,14 +4,19 @@ With it the fit's colour is
 
     colour = albedo * (a + (1 - a) * max(0, n . l) * V + environment)
              + (1 - a) * V * pi * f_s(n, l, v) * max(0, n . l)
+             + E(n . v) * L(r)
 
 f_s is the specular half of Blender's Principled BSDF: a GGX microfacet lobe (alpha = roughness^2),
-Smith's height-correlated masking, and a Fresnel term that is Schlick's for a dielectric of IOR
-1.5 (F0 = 0.04) scaled by 2 * level, as Principled's "Specular IOR Level" scales it (0.5: the
-IOR's own reflectance, 0: none, 1: twice it). The fit's light has irradiance pi (1 - a) (a
-Blender sun of that strength lights a Lambertian albedo exactly as the fit does), hence the pi.
-The bind puts roughness and level into the Principled BSDF (principled_inputs); Blender's
-Fresnel is the exact dielectric one, which differs from Schlick's only near grazing angles.
+Smith's height-correlated masking, and the exact dielectric Fresnel term of the index of
+refraction whose reflectance at normal incidence is that of IOR 1.5 (F0 = 0.04) times 2 * level,
+as Principled's "Specular IOR Level" sets it (0.5: the IOR's own reflectance, 0: none, 1: twice
+it; render/shading.py principled_fresnel). The fit's light has irradiance pi (1 - a) (a Blender
+sun of that strength lights a Lambertian albedo exactly as the fit does), hence the pi. The last
+line is the lobe's sheen of the room (render/shading.py room_specular): E the lobe's reflectance
+of uniform light towards the camera, L the room's radiance (ambient and environment) along the
+mirror direction r, blurred as the environment's harmonics are. The bind puts roughness and
+level into the Principled BSDF (principled_inputs), which then reflects the sun and the bound
+world as the fit does (tests/test_blender_specular.py).
 
 Stored in avatar.json's light as {"roughness": r, "level": s}, or null where the fit found no
 sheen; avatar folders written before it have no such key (Blender's defaults then).

@@ -209,6 +209,9 @@ def _lit_colour(ops, points, faces, frags, position, albedo, normal, light, lost
         to_camera = torch.nn.functional.normalize(-position, dim=-1, eps=1e-12)   # the camera is the origin
         sheen = reference_shading.specular_shading(normal, to_light, to_camera, *light.specular) * (1 - light.ambient)
         colour = colour + (sheen if visibility is None else sheen * visibility)
+        # and the room's light in the lobe, less the share of the room the hand keeps from the point
+        room = reference_shading.room_specular(normal, to_camera, *light.specular, light.ambient, light.environment)
+        colour = colour + (room if lost is None else room * (1 - lost[:, :1]).clamp(min=0))
     return linear_to_srgb(colour) if light.linear else colour
 
 
