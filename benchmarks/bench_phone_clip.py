@@ -72,7 +72,7 @@ def main(argv=None):
     parser.add_argument("out", type=Path)
     parser.add_argument("--frames", type=int, default=30)
     parser.add_argument("--identity", type=int, default=3, help="synth/render.py --identity (default 3)")
-    parser.add_argument("--preset", default="fast", choices=("fast", "balanced", "full"))
+    parser.add_argument("--preset", default="fast", choices=("preview", "fast", "full"))
     parser.add_argument("--masks", default="exact,video", help="comma-separated: exact, video (default both)")
     parser.add_argument("--window", choices=("hand", "mask"), default="hand", help="harp import-video --window")
     parser.add_argument("--crop", choices=("auto", "frame", "clip"), default="auto", help="harp import-video --crop")

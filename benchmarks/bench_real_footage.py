@@ -48,7 +48,7 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("video")
     parser.add_argument("--work", default="bench_real_footage", help="working folder (default: bench_real_footage)")
-    parser.add_argument("--preset", default="fast", choices=("fast", "balanced", "full"))
+    parser.add_argument("--preset", default="fast", choices=("preview", "fast", "full"))
     parser.add_argument("--hold-out-every", type=int, default=10)
     parser.add_argument("--size", type=int, default=448)
     parser.add_argument("--max-frames", type=int, default=None)

@@ -172,10 +172,9 @@ def _demo(args):
 # clip"); here, not in fit/, because importing the fit imports torch before configure_threads may set its
 # threads' waiting; the add-on's panel (harp_addon/properties.py) says the same
 PRESET_NOTES = {
-    "fast": "about 6 min for a 150-frame clip on one CPU core; the best of the three on the clips measured",
-    "balanced": "320 px, a 512 texture where the footage fills it, about 3x as long as fast; on the 30-frame demo "
-                "its held-out frames score 0.5 dB higher but its hand ends 10%% off in size (new poses 9 dB "
-                "worse): not recommended",
+    "preview": "a first look in about 2 min for a 150-frame 448 px clip on 2 CPU cores (192 px, a short fit, HARP's "
+               "light alone): joint error 6%% and L1 17%% above fast's",
+    "fast": "about 6 min for a 150-frame clip on 2 CPU cores; the best of the presets on the clips measured",
     "full": "the paper's schedule at 448 px, about 50 min for 150 frames (kept to compare with HARP): level with "
             "fast on the 150-frame clips, behind it on the demo (held-out -0.9 dB, surface 2x)",
 }
@@ -202,14 +201,14 @@ def build_parser():
     fit = commands.add_parser("fit", help="fit an avatar to a sequence folder that has an init.npz")
     fit.add_argument("sequence", help="sequence folder")
     fit.add_argument("--out", required=True, help="avatar folder to write")
-    fit.add_argument("--preset", choices=("fast", "balanced", "full"), default="fast", help=_preset_help())
-    fit.add_argument("--shadows", choices=("auto", "on", "off"), default="auto",
+    fit.add_argument("--preset", choices=tuple(PRESET_NOTES), default="fast", help=_preset_help())
+    fit.add_argument("--shadows", choices=("auto", "on", "off"), default=None,
                      help="self-shadowing: auto (default) renders fitted frames with and without it half-way "
                           "through the fit and keeps whichever matches them better")
     fit.add_argument("--solve-albedo", action=argparse.BooleanOptionalAction, default=None,
                      help="solve the final albedo from the frames once geometry and light are final (default: on; "
                           "sharp detail such as tattoos, docs/fidelity.md)")
-    fit.add_argument("--exposure", choices=("auto", "on", "off"), default="auto",
+    fit.add_argument("--exposure", choices=("auto", "on", "off"), default=None,
                      help="per-frame exposure and white-balance gains: auto (default) switches them on when the "
                           "footage's background brightness changes over the clip (a phone's automatic exposure)")
     fit.add_argument("--environment", choices=("auto", "on", "off"), default=None,
@@ -238,8 +237,8 @@ def build_parser():
     fit.add_argument("--light-search", choices=("on", "off"), default=None,
                      help="before the light is fitted, its direction and the ambient ratio searched over the whole "
                           "sphere, each candidate scored by how well one colour per texel explains the frames: on "
-                          "(default; on a phone-like clip's 3 seeds held out +1.05 dB and new poses +1.1 dB, the "
-                          "albedo a tenth less sharp: docs/fit.md), or off (the light starts in front of the hand, "
+                          "(default; on a phone-like clip's 3 seeds held out +1.05 dB and new poses +1.1 dB: "
+                          "docs/fit.md), or off (the light starts in front of the hand, "
                           "above the camera)")
     fit.add_argument("--albedo-facing", choices=("on", "off"), default=None,
                      help="the final albedo solve weighs each pixel by how squarely it sees the skin, so a texel "
@@ -289,12 +288,12 @@ def build_parser():
                        help="comma-separated shell patterns of clip names, e.g. 'small-*,medium-light_*'")
     study.add_argument("--quick", action="store_true", help="a small version for CI: stages capped, short sweep")
     study.add_argument("--threads", type=int, metavar="N", help=THREADS_HELP)
-    study.add_argument("--preset", choices=("fast", "balanced", "full"), default="fast",
+    study.add_argument("--preset", choices=tuple(PRESET_NOTES), default="fast",
                        help="preset of the refinement fits (default: fast)")
     study.add_argument("--sections", default="refinement,runtime,stability",
                        help="which parts to run (default: refinement,runtime,stability)")
-    study.add_argument("--runtime-presets", default="fast,balanced,full",
-                       help="presets compared in the run-time section (default: fast,balanced,full)")
+    study.add_argument("--runtime-presets", default="preview,fast,full",
+                       help="presets compared in the run-time section (default: preview,fast,full)")
     study.add_argument("--runtime-frames", type=int, default=30, metavar="N",
                        help="frames of the clip every preset fits in the run-time section, spread evenly "
                             "(default: 30; 0: each preset's own number)")

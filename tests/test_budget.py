@@ -61,8 +61,10 @@ def test_a_short_budget_says_which_preset_would_suit_it():
     from types import SimpleNamespace
 
     note = fitting._short_budget_note(SimpleNamespace(stage_seconds=164.0, needed_seconds=1900.0), "full")
-    assert "2.7 min of the 31.7 min" in note and "preset balanced or fast" in note
-    assert "longer budget" in fitting._short_budget_note(SimpleNamespace(stage_seconds=-5.0, needed_seconds=60.0), "fast")
+    assert "2.7 min of the 31.7 min" in note and "preset fast or preview" in note
+    assert "preset preview" in fitting._short_budget_note(SimpleNamespace(stage_seconds=-5.0, needed_seconds=60.0), "fast")
+    assert "longer budget" in fitting._short_budget_note(SimpleNamespace(stage_seconds=-5.0, needed_seconds=60.0),
+                                                         "preview")
 
 
 def test_steps_already_taken_are_kept_and_not_charged():

@@ -112,3 +112,20 @@ def test_console_script_is_installed():
 
 def test_docs_joint_limit_table_matches_the_code():
     assert joint_limits_markdown() in (ROOT / "docs" / "hand_model.md").read_text()
+
+
+def test_the_presets_are_named_alike_in_the_settings_the_command_and_the_blender_panel():
+    """harp fit --preset, its help's measured notes and the add-on's preset menu offer exactly the
+    presets fit/settings.PRESETS defines (the add-on's list is read as text: it imports bpy)."""
+    import ast
+
+    from pipeline.cli import PRESET_NOTES
+    from pipeline.fit.settings import PRESETS
+
+    assert list(PRESET_NOTES) == list(PRESETS)
+    fit_parser = build_parser()._subparsers._group_actions[0].choices["fit"]
+    assert tuple(next(a for a in fit_parser._actions if a.dest == "preset").choices) == tuple(PRESETS)
+    source = Path(__file__).resolve().parents[1] / "harp_addon" / "properties.py"
+    panel = next(node.value for node in ast.parse(source.read_text()).body
+                 if isinstance(node, ast.Assign) and getattr(node.targets[0], "id", None) == "PRESETS")
+    assert [item[0] for item in ast.literal_eval(panel)] == list(PRESETS)

@@ -178,11 +178,20 @@ def test_settings_saved_before_the_coarse_grid_keep_the_fine_one():
     assert FitSettings.from_dict(saved).displacement_grid == "fine"
     assert FitSettings().displacement_grid == "coarse"
     assert FitSettings.from_dict(vars(FitSettings())).displacement_grid == "coarse"
-    assert [settings_for(preset, 150).displacement_grid for preset in ("fast", "balanced", "full")] == \
+    assert [settings_for(preset, 150).displacement_grid for preset in ("preview", "fast", "full")] == \
         ["coarse", "coarse", "fine"]
     assert settings_for("full", 150, displacement_grid="coarse").displacement_grid == "coarse"
     full = settings_for("full", 150)
     assert FitSettings.from_dict(vars(full)).displacement_grid == "fine"
+
+
+def test_a_retired_preset_says_why_and_what_to_choose():
+    from pipeline.fit.settings import settings_for
+
+    with pytest.raises(ValueError, match="preset 'balanced' was retired: fast scored .*'preview', 'fast', 'full'"):
+        settings_for("balanced", 30)
+    with pytest.raises(ValueError, match="unknown preset 'best'"):
+        settings_for("best", 30)
 
 
 def test_the_presets_texture_follows_the_working_image_size():
@@ -195,7 +204,7 @@ def test_the_presets_texture_follows_the_working_image_size():
     assert settings_for("full", 150, image_size=1920).texture_size == 512       # worked at 448 px
     assert settings_for("full", 150, image_size=448).texture_size == 512
     assert settings_for("full", 30, image_size=256).texture_size == 256         # the demo clip
-    assert settings_for("balanced", 30, image_size=256).texture_size == 256
+    assert settings_for("preview", 30, image_size=256).texture_size == 256
     assert settings_for("fast", 30, image_size=256).texture_size == 256
     assert settings_for("fast", 30, image_size=96).texture_size == 128
     assert settings_for("full", 30, image_size=256, texture_size=1024).texture_size == 1024   # the user's choice

@@ -159,7 +159,7 @@ def test_study_on_two_tiny_clips_fills_every_cell(tmp_path):
                    for name in ("joint_mm", "vertex_mm", "joint_camera_mm", "vertex_camera_mm")), row
     assert set(refinement["means"]["all"]) == set(CASES)
     runtime = study["sections"]["runtime"]
-    assert [row["preset"] for row in runtime["table"]] == ["fast", "balanced", "full"]
+    assert [row["preset"] for row in runtime["table"]] == ["preview", "fast", "full"]
     assert all(row["final_l1"] is not None and row["final_joint_mm"] is not None for row in runtime["table"])
     assert runtime["table"][-1]["seconds_to_both"] is not None      # the reference reaches its own level
     assert runtime["frames"] == 4

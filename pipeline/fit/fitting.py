@@ -322,7 +322,7 @@ def _opening_line(problem, preset, estimate):
 
 
 def _short_budget_note(budget, preset):
-    lighter = {"full": "balanced or fast", "balanced": "fast"}.get(preset)
+    lighter = {"full": "fast or preview", "fast": "preview"}.get(preset)
     return (f"; the budget leaves the stages {duration_text(max(0.0, budget.stage_seconds))} of the "
             f"{duration_text(budget.needed_seconds)} that preset {preset} needs at the least on this clip, so every "
             "stage is cut short" + (f": preset {lighter} would use the time better" if lighter

@@ -31,7 +31,7 @@ class FitSettings:
     lr_betas: float = 1e-2          # shape units per step
     lr_displacement: float = 1e-4   # metres per step
     # displacements per point of the unsubdivided mesh, carried to the subdivided one ("coarse"),
-    # or per subdivided point ("fine"; also checkpoints from before the choice). `fast`, `balanced`:
+    # or per subdivided point ("fine"; also checkpoints from before the choice). `fast`, `balanced` (retired):
     # the coarse grid's reposed hands are 26-37% less rough, its other figures equal or better;
     # `full` keeps the fine grid, whose new poses score 0.7-1.2 dB higher at 448 px (docs/fidelity.md)
     displacement_grid: str = "coarse"
@@ -80,8 +80,8 @@ class FitSettings:
     # the point light's direction and the ambient ratio searched over the whole sphere before the first stage that
     # fits them (light_search.py): "on", the default, | "off" (the light starts in front of the hand, above the
     # camera). On the phone-like clip's 3 seeds every one then found the window, where one had before: held out
-    # 27.91 -> 28.96 dB on the mean, new poses +1.1 dB, the albedo nearer the truth but a tenth less sharp; the demo
-    # level (docs/fit.md); about 5 s
+    # 27.91 -> 28.96 dB on the mean, new poses +1.1 dB, the albedo nearer the truth but a tenth less sharp (which
+    # the lobe's sheen of the room, added after it, brought back); the demo level (docs/fit.md); about 5 s
     light_search: str = "on"
     # the albedo solve's pixels weighted by how squarely they see the surface (albedo_solve._facing): "on" |
     # "off", the default: on the phone-like clip's seed 0 it lost 0.3 dB held out and its albedo was no nearer
@@ -158,12 +158,22 @@ class FitSettings:
 
 
 PRESETS = {
+    # a first look in about 2 minutes: 192 px, a short alignment and joint stage, no appearance stage, and HARP's
+    # light alone (no environment light, no specular lobe: neither is fitted nor decided, so the albedo is solved
+    # once); on a 150-frame 448 px clip with 2 threads, 112 s: joint error 6% and L1 17% above fast's
+    # (docs/performance.md, "A first avatar in two minutes")
+    "preview": dict(resolution=192, texture_size=256, batch_size=6, steps=(20, 170, 0), align_steps=50,
+                    environment="off", specular="off"),
     "fast": dict(resolution=256, texture_size=256, batch_size=6, steps=(200, 300, 200)),
-    "balanced": dict(resolution=320, texture_size=512, batch_size=8, steps=(500, 600, 400), max_frames=90),
     # the paper's schedule: 100 / 50 / 50 epochs over every frame, batches of ~18 frames
     "full": dict(resolution=448, texture_size=512, batch_size=18, steps=(None, None, None), max_frames=100000,
                  displacement_grid="fine"),
 }
+
+
+# presets no longer offered, and why (a finished fit of one still loads: its checkpoint holds its settings)
+RETIRED_PRESETS = {"balanced": "fast scored as well or better on every clip measured, and balanced's longer fit let "
+                               "the hand's size drift (docs/performance.md)"}
 
 
 def texture_size_for(working_size):
@@ -179,8 +189,10 @@ def settings_for(preset, frame_count, image_size=None, **overrides):
     (the clip's `frame_count`, at most max_frames). With `image_size` (the clip's long side,
     pixels), the preset's texture shrinks to what the working images can fill
     (texture_size_for); a texture_size given in `overrides` is kept as given."""
+    if preset in RETIRED_PRESETS:
+        raise ValueError(f"preset {preset!r} was retired: {RETIRED_PRESETS[preset]}; choose one of {list(PRESETS)}")
     if preset not in PRESETS:
-        raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
+        raise ValueError(f"unknown preset {preset!r}; choose one of {list(PRESETS)}")
     values = dict(PRESETS[preset])
     values.update({k: v for k, v in overrides.items() if v is not None and k != "steps"})
     if image_size is not None and overrides.get("texture_size") is None:
