@@ -24,7 +24,9 @@ def _problem_at_truth(folder, shadows):
     write_clip(folder, RELAXED, frames=3, size=96, turn_degrees=20, shadows=shadows, light_position=SIDE_LIGHT)
     gt = seq.read_ground_truth(folder / seq.GT_FILE)
     write_initial_estimate(folder, ground_truth_with_noise(gt, joint_degrees=0.0, translation_m=0.0, seed=0))
-    problem = fitting._set_up(folder, fitting.FitJob("fast", device="cpu"), {"exposure": "off"}).problem
+    # the clips are drawn without a specular lobe: the avatar at their truth has none either
+    problem = fitting._set_up(folder, fitting.FitJob("fast", device="cpu"),
+                              {"exposure": "off", "specular": "off"}).problem
     avatar = problem.avatar
     size = avatar.albedo.shape[-1]
     albedo = torch.as_tensor(seq.read_rgb(folder / seq.GT_ALBEDO_FILE) / 255.0).permute(2, 0, 1)[None]
