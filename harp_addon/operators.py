@@ -106,12 +106,19 @@ class HARP_OT_fit(_Action):
     def act(self, context, settings):
         avatar = settings.avatar or bpy.path.abspath("//harp_avatar")
         actions.start_fit(context.scene.name, bpy.path.abspath(settings.sequence), bpy.path.abspath(avatar),
-                          preset=settings.preset, shadows=settings.shadows, environment=settings.environment,
-                          specular=settings.specular, init=settings.init,
+                          preset=settings.preset, shadows=settings.shadows,
+                          environment=_unless_preset(settings.environment),
+                          specular=_unless_preset(settings.specular), init=settings.init,
                           python=actions.engine_python(context), resume=self.resume)
         settings.avatar = avatar
         _watch(context)
         return f"{'resuming' if self.resume else 'fitting'} into {avatar}"
+
+
+def _unless_preset(choice):
+    """A panel choice of the room light or the skin's sheen as `harp fit` takes it: None (the
+    option left out) where the panel leaves it to the preset."""
+    return None if choice == "preset" else choice
 
 
 class HARP_OT_cancel(_Action):

@@ -13,11 +13,14 @@ PRESETS = [("preview", "Preview", "A first look in about 2 min for a 150-frame c
 SHADOWS = [("auto", "Auto", "Decided by measuring: fitted frames rendered with and without shadows, "
                                "the better kept"),
            ("on", "On", "Self-shadowing always"), ("off", "Off", "No self-shadowing (soft, even light)")]
-ENVIRONMENTS = [("auto", "Auto", "A room's light from every side, kept where its colour changes with direction "
+# "preset": whatever the chosen preset does (Auto in Fast and Full; Off in Preview, which fits HARP's light alone)
+ENVIRONMENTS = [("preset", "As the preset", "Auto in Fast and Full, Off in Preview"),
+                ("auto", "Auto", "A room's light from every side, kept where its colour changes with direction "
                                  "(a white point light cannot explain that)"),
                 ("on", "On", "Always fit a room's light beside the point light"),
                 ("off", "Off", "One point light and an even ambient light (HARP's light)")]
-SPECULARS = [("auto", "Auto", "The skin's sheen (a roughness and a level), kept where it carries a visible share "
+SPECULARS = [("preset", "As the preset", "Auto in Fast and Full, Off in Preview"),
+             ("auto", "Auto", "The skin's sheen (a roughness and a level), kept where it carries a visible share "
                               "of the light"),
              ("on", "On", "Always fit the skin's sheen"),
              ("off", "Off", "A matte skin (HARP's)")]
@@ -42,8 +45,8 @@ class HarpSettings(bpy.types.PropertyGroup):
     sequence: StringProperty(name="Sequence", subtype="DIR_PATH", description="Sequence folder (written by Import)")
     preset: EnumProperty(name="Preset", items=PRESETS, default="fast")
     shadows: EnumProperty(name="Shadows", items=SHADOWS, default="auto")
-    environment: EnumProperty(name="Room light", items=ENVIRONMENTS, default="auto")
-    specular: EnumProperty(name="Skin sheen", items=SPECULARS, default="auto")
+    environment: EnumProperty(name="Room light", items=ENVIRONMENTS, default="preset")
+    specular: EnumProperty(name="Skin sheen", items=SPECULARS, default="preset")
     init: EnumProperty(name="Start from", items=INITS, default="mediapipe")
     avatar: StringProperty(name="Avatar", subtype="DIR_PATH", description="Avatar folder (written by Fit)")
     pack_on_bind: BoolProperty(name="Pack images", default=False,

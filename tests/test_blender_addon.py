@@ -551,3 +551,13 @@ def test_the_personalised_mesh_can_go_onto_the_artists_rig(prepared_avatar, empt
     assert worst < 0.01
     with pytest.raises(RetargetError, match="cannot go onto a Rigify rig yet"):
         deform_map("rigify", "right")
+
+
+def test_the_panel_leaves_the_room_light_and_the_sheen_to_the_preset_unless_chosen():
+    """Preview fits HARP's light alone and Fast decides both: the panel's default passes neither
+    option to `harp fit`, so the preset decides; a choice made in the panel is passed on."""
+    from harp_addon import operators, properties
+
+    assert properties.ENVIRONMENTS[0][0] == properties.SPECULARS[0][0] == "preset"
+    assert operators._unless_preset("preset") is None
+    assert [operators._unless_preset(choice) for choice in ("auto", "on", "off")] == ["auto", "on", "off"]
