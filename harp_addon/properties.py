@@ -5,8 +5,8 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
 # as pipeline/cli.PRESET_NOTES gives the measured figures (the add-on cannot import the fitting engine)
-PRESETS = [("preview", "Preview", "A first look in about 2 min for a 150-frame clip on 2 CPU cores: joint error "
-                                  "6% and L1 17% above Fast's"),
+PRESETS = [("preview", "Preview", "A first look in under 2 min for a 150-frame clip on 2 CPU cores: joint error "
+                                  "5% and L1 9% above Fast's"),
            ("fast", "Fast", "About 6 min for a 150-frame clip on 2 CPU cores; the best of the presets so far"),
            ("full", "Full", "The paper's schedule at 448 px, about 50 min for 150 frames, to compare with HARP; "
                             "not better than Fast")]

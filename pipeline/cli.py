@@ -172,8 +172,8 @@ def _demo(args):
 # clip"); here, not in fit/, because importing the fit imports torch before configure_threads may set its
 # threads' waiting; the add-on's panel (harp_addon/properties.py) says the same
 PRESET_NOTES = {
-    "preview": "a first look in about 2 min for a 150-frame 448 px clip on 2 CPU cores (192 px, a short fit, HARP's "
-               "light alone): joint error 6%% and L1 17%% above fast's",
+    "preview": "a first look in under 2 min for a 150-frame 448 px clip on 2 CPU cores (160 px, a short fit, HARP's "
+               "light alone): joint error 5%% and L1 9%% above fast's",
     "fast": "about 6 min for a 150-frame clip on 2 CPU cores; the best of the presets on the clips measured",
     "full": "the paper's schedule at 448 px, about 50 min for 150 frames (kept to compare with HARP): level with "
             "fast on the 150-frame clips, behind it on the demo (held-out -0.9 dB, surface 2x)",

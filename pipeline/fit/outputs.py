@@ -96,8 +96,8 @@ def metrics_line(scores):
     """One line of a fit's image figures (image_scores' result), for logs."""
     iou = scores["silhouette_iou"]
     return (f"silhouette IoU min {min(iou):.3f} (mean {sum(iou) / len(iou):.3f}), PSNR in the mask "
-            f"{scores['psnr_mean']:.1f} dB (min {scores['psnr_min']:.1f}), L1 {scores['l1_mean']:.4f}, "
-            f"MS-SSIM {scores.get('ms_ssim_mean', float('nan')):.3f}")
+            f"{scores['psnr_mean']:.1f} dB (min {scores['psnr_min']:.1f}), L1 {scores['l1_mean']:.4f}"
+            + (f", MS-SSIM {scores['ms_ssim_mean']:.3f}" if "ms_ssim_mean" in scores else ""))   # >= 176 px only
 
 
 def write_outputs(out, problem, state, held_out=(), estimate=None, validation_frames=(), elapsed=None):

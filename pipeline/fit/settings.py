@@ -158,11 +158,12 @@ class FitSettings:
 
 
 PRESETS = {
-    # a first look in about 2 minutes: 192 px, a short alignment and joint stage, no appearance stage, and HARP's
-    # light alone (no environment light, no specular lobe: neither is fitted nor decided, so the albedo is solved
-    # once); on a 150-frame 448 px clip with 2 threads, 112 s: joint error 6% and L1 17% above fast's
-    # (docs/performance.md, "A first avatar in two minutes")
-    "preview": dict(resolution=192, texture_size=256, batch_size=6, steps=(20, 170, 0), align_steps=50,
+    # a first look in under 2 minutes: 160 px, batches of 10 (each frame's pose visited about as often as in fast's
+    # joint stage), a short alignment and joint stage, no appearance stage, and HARP's light alone (no environment
+    # light, no specular lobe: neither is fitted nor decided, so the albedo is solved once); on a 150-frame 448 px
+    # clip with 2 threads, 102 s: joint error 5% and L1 9% above fast's (docs/performance.md, "A first avatar in
+    # two minutes")
+    "preview": dict(resolution=160, texture_size=256, batch_size=10, steps=(20, 170, 0), align_steps=50,
                     environment="off", specular="off"),
     "fast": dict(resolution=256, texture_size=256, batch_size=6, steps=(200, 300, 200)),
     # the paper's schedule: 100 / 50 / 50 epochs over every frame, batches of ~18 frames
