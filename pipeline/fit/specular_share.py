@@ -36,8 +36,8 @@ def specular_share(problem, shadows) -> dict:
         vertices, _ = avatar.posed(batch)
         light = avatar.light(shadows, batch, vertices)
         matte = dataclasses.replace(light, specular=None)
-        images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=("rgb", "alpha", "normal"),
-                        appearance=appearance, light=light, antialiased=False)
+        images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width,
+                        outputs=("rgb", "alpha", "normal"), appearance=appearance, light=light, antialiased=False)
         sheen = images["rgb"] - render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width,
                                        outputs=("rgb",), appearance=appearance, light=matte, antialiased=False)["rgb"]
         inside = (images["alpha"][..., 0] > 0.5) & (-images["normal"][..., 2] >= FACING)   # the camera looks along +z
