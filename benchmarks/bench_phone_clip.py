@@ -38,6 +38,7 @@ from pipeline.evaluate import evaluate_fit, summary_lines  # noqa: E402
 from pipeline.evaluate.evaluation import HELD_OUT_PICTURE  # noqa: E402
 from pipeline.fit import fit  # noqa: E402
 from pipeline.fit.outputs import GRID_FILE  # noqa: E402
+from pipeline.fit.settings import PRESETS  # noqa: E402
 from pipeline.formats import sequence_folder as seq  # noqa: E402
 from pipeline.init import initialise_sequence  # noqa: E402
 from synth.imported import import_with_ground_truth  # noqa: E402
@@ -72,7 +73,7 @@ def main(argv=None):
     parser.add_argument("out", type=Path)
     parser.add_argument("--frames", type=int, default=30)
     parser.add_argument("--identity", type=int, default=3, help="synth/render.py --identity (default 3)")
-    parser.add_argument("--preset", default="fast", choices=("preview", "fast", "full"))
+    parser.add_argument("--preset", default="fast", choices=tuple(PRESETS))
     parser.add_argument("--masks", default="exact,video", help="comma-separated: exact, video (default both)")
     parser.add_argument("--window", choices=("hand", "mask"), default="hand", help="harp import-video --window")
     parser.add_argument("--crop", choices=("auto", "frame", "clip"), default="auto", help="harp import-video --crop")

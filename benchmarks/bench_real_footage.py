@@ -33,6 +33,7 @@ from pipeline.evaluate import evaluate_fit  # noqa: E402
 from pipeline.evaluate.evaluation import HELD_OUT_PICTURE  # noqa: E402
 from pipeline.fit import fit  # noqa: E402
 from pipeline.fit.outputs import GRID_FILE  # noqa: E402
+from pipeline.fit.settings import PRESETS  # noqa: E402
 from pipeline.formats import sequence_folder as seq  # noqa: E402
 from pipeline.formats.fit_report import read_report  # noqa: E402
 from pipeline.init import initialise_sequence  # noqa: E402
@@ -48,7 +49,7 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("video")
     parser.add_argument("--work", default="bench_real_footage", help="working folder (default: bench_real_footage)")
-    parser.add_argument("--preset", default="fast", choices=("preview", "fast", "full"))
+    parser.add_argument("--preset", default="fast", choices=tuple(PRESETS))
     parser.add_argument("--hold-out-every", type=int, default=10)
     parser.add_argument("--size", type=int, default=448)
     parser.add_argument("--max-frames", type=int, default=None)

@@ -7,19 +7,21 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, Po
 # as pipeline/cli.PRESET_NOTES gives the measured figures (the add-on cannot import the fitting engine)
 PRESETS = [("preview", "Preview", "A first look in under 2 min for a 150-frame clip on 2 CPU cores: joint error "
                                   "5% and L1 9% above Fast's"),
-           ("fast", "Fast", "About 6 min for a 150-frame clip on 2 CPU cores; the best of the presets so far"),
-           ("full", "Full", "The paper's schedule at 448 px, about 50 min for 150 frames, to compare with HARP; "
-                            "not better than Fast")]
+           ("fast", "Fast", "About 6 min for a 150-frame clip on 2 CPU cores"),
+           ("full", "Full", "Fast's fit carried to convergence, about 8 min for a 150-frame clip on 2 CPU "
+                            "cores: the held-out frames 0.2-0.3 dB closer than Fast's"),
+           ("paper", "Paper", "HARP's own schedule at 448 px, about 50 min for 150 frames, to compare with the "
+                              "paper; no better than Fast")]
 SHADOWS = [("auto", "Auto", "Decided by measuring: fitted frames rendered with and without shadows, "
                                "the better kept"),
            ("on", "On", "Self-shadowing always"), ("off", "Off", "No self-shadowing (soft, even light)")]
-# "preset": whatever the chosen preset does (Auto in Fast and Full; Off in Preview, which fits HARP's light alone)
-ENVIRONMENTS = [("preset", "As the preset", "Auto in Fast and Full, Off in Preview"),
+# "preset": whatever the chosen preset does (Auto in Fast, Full and Paper; Off in Preview: HARP's light alone)
+ENVIRONMENTS = [("preset", "As the preset", "Auto in Fast, Full and Paper, Off in Preview"),
                 ("auto", "Auto", "A room's light from every side, kept where its colour changes with direction "
                                  "(a white point light cannot explain that)"),
                 ("on", "On", "Always fit a room's light beside the point light"),
                 ("off", "Off", "One point light and an even ambient light (HARP's light)")]
-SPECULARS = [("preset", "As the preset", "Auto in Fast and Full, Off in Preview"),
+SPECULARS = [("preset", "As the preset", "Auto in Fast, Full and Paper, Off in Preview"),
              ("auto", "Auto", "The skin's sheen (a roughness and a level), kept where it carries a visible share "
                               "of the light"),
              ("on", "On", "Always fit the skin's sheen"),

@@ -60,8 +60,10 @@ def test_the_floor_is_where_every_stage_starts_being_cut_alike():
 def test_a_short_budget_says_which_preset_would_suit_it():
     from types import SimpleNamespace
 
-    note = fitting._short_budget_note(SimpleNamespace(stage_seconds=164.0, needed_seconds=1900.0), "full")
-    assert "2.7 min of the 31.7 min" in note and "preset fast or preview" in note
+    note = fitting._short_budget_note(SimpleNamespace(stage_seconds=164.0, needed_seconds=1900.0), "paper")
+    assert "2.7 min of the 31.7 min" in note and "preset full, fast or preview" in note
+    assert "preset fast or preview" in fitting._short_budget_note(SimpleNamespace(stage_seconds=60.0,
+                                                                                   needed_seconds=500.0), "full")
     assert "preset preview" in fitting._short_budget_note(SimpleNamespace(stage_seconds=-5.0, needed_seconds=60.0), "fast")
     assert "longer budget" in fitting._short_budget_note(SimpleNamespace(stage_seconds=-5.0, needed_seconds=60.0),
                                                          "preview")

@@ -178,17 +178,17 @@ def test_settings_saved_before_the_coarse_grid_keep_the_fine_one():
     assert FitSettings.from_dict(saved).displacement_grid == "fine"
     assert FitSettings().displacement_grid == "coarse"
     assert FitSettings.from_dict(vars(FitSettings())).displacement_grid == "coarse"
-    assert [settings_for(preset, 150).displacement_grid for preset in ("preview", "fast", "full")] == \
-        ["coarse", "coarse", "fine"]
-    assert settings_for("full", 150, displacement_grid="coarse").displacement_grid == "coarse"
-    full = settings_for("full", 150)
-    assert FitSettings.from_dict(vars(full)).displacement_grid == "fine"
+    assert [settings_for(preset, 150).displacement_grid for preset in ("preview", "fast", "full", "paper")] == \
+        ["coarse", "coarse", "coarse", "fine"]
+    assert settings_for("paper", 150, displacement_grid="coarse").displacement_grid == "coarse"
+    paper = settings_for("paper", 150)
+    assert FitSettings.from_dict(vars(paper)).displacement_grid == "fine"
 
 
 def test_a_retired_preset_says_why_and_what_to_choose():
     from pipeline.fit.settings import settings_for
 
-    with pytest.raises(ValueError, match="preset 'balanced' was retired: fast scored .*'preview', 'fast', 'full'"):
+    with pytest.raises(ValueError, match="preset 'balanced' was retired: fast scored .*'preview', 'fast', 'full', 'paper'"):
         settings_for("balanced", 30)
     with pytest.raises(ValueError, match="unknown preset 'best'"):
         settings_for("best", 30)
@@ -200,11 +200,12 @@ def test_the_presets_texture_follows_the_working_image_size():
     from pipeline.fit.settings import settings_for, texture_size_for
 
     assert [texture_size_for(n) for n in (40, 96, 256, 257, 320, 448, 1080)] == [64, 128, 256, 512, 512, 512, 2048]
-    assert settings_for("full", 150).texture_size == 512                        # size unknown: the preset's
-    assert settings_for("full", 150, image_size=1920).texture_size == 512       # worked at 448 px
-    assert settings_for("full", 150, image_size=448).texture_size == 512
-    assert settings_for("full", 30, image_size=256).texture_size == 256         # the demo clip
+    assert settings_for("paper", 150).texture_size == 512                       # size unknown: the preset's
+    assert settings_for("paper", 150, image_size=1920).texture_size == 512      # worked at 448 px
+    assert settings_for("paper", 150, image_size=448).texture_size == 512
+    assert settings_for("paper", 30, image_size=256).texture_size == 256        # the demo clip
+    assert settings_for("full", 30, image_size=1920).texture_size == 256        # full works at fast's 256 px
     assert settings_for("preview", 30, image_size=256).texture_size == 256
     assert settings_for("fast", 30, image_size=256).texture_size == 256
     assert settings_for("fast", 30, image_size=96).texture_size == 128
-    assert settings_for("full", 30, image_size=256, texture_size=1024).texture_size == 1024   # the user's choice
+    assert settings_for("paper", 30, image_size=256, texture_size=1024).texture_size == 1024  # the user's choice

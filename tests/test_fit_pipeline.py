@@ -41,7 +41,9 @@ def test_fit_writes_a_complete_avatar(tiny_clip, tmp_path):
     written = json.loads((out / "report.json").read_text())
     assert written["stage_seconds"]["geometry"] > 0
     # the whole run's time holds the stages' and what came after them (the albedo solve, the outputs)
-    assert written["wall_seconds"] > written["total_seconds"] + written["output_seconds"]
+    after = written["after_stages_seconds"]     # by part, each inside the whole run's time
+    assert {"albedo_solve", "light_decisions", "texture_fill"} <= set(after) and min(after.values()) >= 0
+    assert written["wall_seconds"] > written["total_seconds"] + written["output_seconds"] + after["albedo_solve"]
     # every texel outside the charts carries its nearest chart texel's value (filtering at the
     # seams mixes in only the hand's), in the albedo and the normal map alike
     from pipeline.fit.texture_fill import extend_outside
@@ -66,10 +68,10 @@ def test_fit_writes_a_complete_avatar(tiny_clip, tmp_path):
 
 def test_the_texture_is_no_finer_than_the_clips_pixels(tiny_clip):
     """A preset's texture shrinks to what the clip's working images can fill (the 96 px clip:
-    128 texels, not `full`'s 512); a texture size the user gives is kept."""
-    problem = fitting._set_up(tiny_clip, fitting.FitJob("full", device="cpu", max_steps=1), {"shadows": "off"}).problem
+    128 texels, not `paper`'s 512); a texture size the user gives is kept."""
+    problem = fitting._set_up(tiny_clip, fitting.FitJob("paper", device="cpu", max_steps=1), {"shadows": "off"}).problem
     assert problem.settings.texture_size == 128 and problem.avatar.albedo.shape[-1] == 128
-    problem = fitting._set_up(tiny_clip, fitting.FitJob("full", device="cpu", max_steps=1),
+    problem = fitting._set_up(tiny_clip, fitting.FitJob("paper", device="cpu", max_steps=1),
                               {"shadows": "off", "texture_size": 512}).problem
     assert problem.settings.texture_size == 512 and problem.avatar.albedo.shape[-1] == 512
 

@@ -138,10 +138,11 @@ def test_a_fit_known_only_by_its_end_is_drawn_as_one_star(curve_fit, tmp_path):
     assert plain.shape == starred.shape and (np.abs(plain.astype(int) - starred).sum(-1) > 60).sum() > 50
 
 
-def test_full_preset_counts_its_epochs_over_the_frames_it_fits():
-    assert settings_for("full", 150).steps == (900, 450, 450)                  # 9 batches of 18 per epoch
-    assert settings_for("full", 150, max_frames=30).steps == (200, 100, 100)   # 2 batches per epoch
-    assert settings_for("full", 150, max_frames=30, steps=(1, 2, 3)).steps == (1, 2, 3)
+def test_the_paper_preset_counts_its_epochs_over_the_frames_it_fits():
+    assert settings_for("paper", 150).steps == (900, 450, 450)                  # 9 batches of 18 per epoch
+    assert settings_for("paper", 150, max_frames=30).steps == (200, 100, 100)   # 2 batches per epoch
+    assert settings_for("paper", 150, max_frames=30, steps=(1, 2, 3)).steps == (1, 2, 3)
+    assert settings_for("full", 150).steps == settings_for("full", 30).steps == (400, 600, 400)   # steps, not epochs
     assert settings_for("fast", 150, max_frames=30).steps == settings_for("fast", 150).steps
 
 
@@ -159,7 +160,7 @@ def test_study_on_two_tiny_clips_fills_every_cell(tmp_path):
                    for name in ("joint_mm", "vertex_mm", "joint_camera_mm", "vertex_camera_mm")), row
     assert set(refinement["means"]["all"]) == set(CASES)
     runtime = study["sections"]["runtime"]
-    assert [row["preset"] for row in runtime["table"]] == ["preview", "fast", "full"]
+    assert [row["preset"] for row in runtime["table"]] == ["preview", "fast", "full", "paper"]
     assert all(row["final_l1"] is not None and row["final_joint_mm"] is not None for row in runtime["table"])
     assert runtime["table"][-1]["seconds_to_both"] is not None      # the reference reaches its own level
     assert runtime["frames"] == 4

@@ -42,7 +42,7 @@ from .study_runs import finished_or_fitted, initialised, read_json, sequence_fra
 
 CASES = ("init gt-noise", "init MediaPipe", "HARP-sil", "HARP-full", "HARP-known")
 FIGURES = ("joint_mm", "vertex_mm", "joint_camera_mm", "vertex_camera_mm")
-RUNTIME_PRESETS = ("preview", "fast", "full")
+RUNTIME_PRESETS = ("preview", "fast", "full", "paper")
 RUNTIME_FRAMES = 30     # frames every preset fits in the run-time section (0: each preset's own)
 WITHIN = 0.05           # "within 5% of the full preset's final figure"
 QUICK_STEPS = 30        # --quick: steps per stage at most

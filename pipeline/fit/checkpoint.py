@@ -71,6 +71,7 @@ class FitState:
     specular: dict | None = None        # `auto` specular lobe, once decided: on, share, highlight, roughness, level
     restarted: dict | None = None       # lost_frames.restart_lost_frames' figures, once it has run (after the alignment)
     light_search: dict | None = None    # light_search.search_light's figures, once it has run (before the light moves)
+    after_stages_seconds: dict = dataclasses.field(default_factory=dict)   # the work after the stages, by part
 
     @classmethod
     def fresh(cls, schedule: Schedule, shadows="auto"):

@@ -109,7 +109,7 @@ class FitJob:
 
 def fit(sequence, out, job: FitJob | None = None, observers=(), **options):
     """Fit an avatar to a sequence folder with an init.npz; writes `out` and returns the report.
-    `options` are FitJob fields (preset="full", resume=True, ...) and FitSettings overrides
+    `options` are FitJob fields (preset="preview", resume=True, ...) and FitSettings overrides
     (texture_size=512, shadows="off", ...) by name; they replace those of `job`. `observers`
     (FitObserver) watch the fit."""
     started = time.perf_counter()
@@ -255,19 +255,25 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
             reporter.log(f"validation: the avatar of {best.stage} step {best.step} ({best.psnr:.2f} dB) is kept, "
                          f"better than the last check's {state.validation[-1]['psnr_mean']:.2f} dB")
             save()
-    problem.avatar.measure_occlusion(exact=True)   # at the final poses, in a resumed fit too
+    timed = _PartTimer(state.after_stages_seconds)
+    with timed("occlusion"):
+        problem.avatar.measure_occlusion(exact=True)   # at the final poses, in a resumed fit too
     solving = problem.settings.solve_albedo and not problem.known_appearance
     if state.albedo_solve is None and solving:
-        state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on)
+        with timed("albedo_solve"):
+            state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on)
         reporter.log(f"albedo solved from the frames on the final geometry and light: "
                      f"{state.albedo_solve['solved_fraction']:.0%} of the texels "
                      f"(mean change {state.albedo_solve['mean_change']:.3f})"
                      + (" with the environment light" if "environment_strength" in state.albedo_solve else ""))
-        _decide_light(problem, state, reporter, solved=True)
+        with timed("light_decisions"):
+            _decide_light(problem, state, reporter, solved=True)
         save()
-    _decide_light(problem, state, reporter, solved=False)     # without an albedo solve: as the stages left it
+    with timed("light_decisions"):
+        _decide_light(problem, state, reporter, solved=False)     # without an albedo solve: as the stages left it
     if state.texture_fill is None and not problem.known_appearance:
-        state.texture_fill = fill_avatar_albedo(problem.avatar, decided_texels(problem))
+        with timed("texture_fill"):
+            state.texture_fill = fill_avatar_albedo(problem.avatar, decided_texels(problem))
         reporter.log(f"albedo: {state.texture_fill['unseen_fraction']:.0%} of the texels not decided by the frames "
                      f"(never seen, or only at the silhouette), filled through the surface "
                      f"(seam contrast {state.texture_fill['seam_contrast_before']:.3f} -> "
@@ -322,7 +328,7 @@ def _opening_line(problem, preset, estimate):
 
 
 def _short_budget_note(budget, preset):
-    lighter = {"full": "fast or preview", "fast": "preview"}.get(preset)
+    lighter = {"paper": "full, fast or preview", "full": "fast or preview", "fast": "preview"}.get(preset)
     return (f"; the budget leaves the stages {duration_text(max(0.0, budget.stage_seconds))} of the "
             f"{duration_text(budget.needed_seconds)} that preset {preset} needs at the least on this clip, so every "
             "stage is cut short" + (f": preset {lighter} would use the time better" if lighter
@@ -449,6 +455,22 @@ class _CheckpointSaver:
     def save_now_and_then(self, state, run, generator):
         if time.time() - self.last_save > self.problem.settings.checkpoint_seconds:
             self.save(state, run, generator)
+
+
+class _PartTimer:
+    """`with timer(part):` adds the block's wall seconds to `seconds[part]` (FitState.after_stages_seconds:
+    what the estimate's after-stages figure is checked against)."""
+
+    def __init__(self, seconds: dict):
+        self.seconds = seconds
+
+    @contextlib.contextmanager
+    def __call__(self, part):
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[part] = self.seconds.get(part, 0.0) + time.perf_counter() - start
 
 
 class _FitClock:

@@ -123,7 +123,8 @@ def write_outputs(out, problem, state, held_out=(), estimate=None, validation_fr
         "schedule": {stage.name: stage.steps for stage in state.schedule},   # the steps in force (a budget's)
         "stage_seconds": dict(zip([stage.name for stage in state.schedule], state.stage_seconds)),
         "total_seconds": state.fit_seconds, "measure_seconds": state.measure_seconds,
-        "output_seconds": time.time() - start, "final_losses": last, "metrics": scores,
+        "output_seconds": time.time() - start, "after_stages_seconds": state.after_stages_seconds,
+        "final_losses": last, "metrics": scores,
         "shadows": dataclasses.asdict(state.shadows), "events": state.events, "restarted_frames": state.restarted,
         "light_search": state.light_search,
         "perceptual_term": problem.perceptual_name, "ambient": avatar.ambient.item(),

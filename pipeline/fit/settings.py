@@ -33,14 +33,15 @@ class FitSettings:
     # displacements per point of the unsubdivided mesh, carried to the subdivided one ("coarse"),
     # or per subdivided point ("fine"; also checkpoints from before the choice). `fast`, `balanced` (retired):
     # the coarse grid's reposed hands are 26-37% less rough, its other figures equal or better;
-    # `full` keeps the fine grid, whose new poses score 0.7-1.2 dB higher at 448 px (docs/fidelity.md)
+    # `paper` keeps the fine grid, whose new poses score 0.7-1.2 dB higher at 448 px (docs/fidelity.md)
     displacement_grid: str = "coarse"
     lr_appearance: float = 1e-2
     # the joint and appearance stages (the last to move their parameters) end at this fraction of their
-    # learning rates, along a half cosine (stage_run.learning_rate_factor). 1: constant, the default: at 0.1
-    # the exact sweep clip's joint error ended at its curve's minimum (0.41 mm, against 0.60 at constant
-    # rates), but the demo clip's fit needs its steps: held-out PSNR 0.32-0.44 dB and joints 0.09-0.13 mm
-    # worse on three seeds of three (docs/fit.md, "Learning rates that fall within a stage")
+    # learning rates, along a half cosine (stage_run.learning_rate_factor). 1: constant, the default and fast's:
+    # at 0.1 the exact sweep clip's joint error ended at its curve's minimum (0.41 mm, against 0.60 at constant
+    # rates), but at fast's steps the demo clip's fit needs them: held-out PSNR 0.32-0.44 dB and joints 0.09-0.13
+    # mm worse on three seeds of three (docs/fit.md, "Learning rates that fall within a stage"); 0.1 in `full`,
+    # which has twice the steps
     final_rate_fraction: float = 1.0
     # in the same stages, the rates halve after each window of stage_run.PLATEAU_WINDOW steps whose mean loss
     # fell by less than this share of the window's before (down to stage_run.PLATEAU_FLOOR); 0: never, the
@@ -90,7 +91,7 @@ class FitSettings:
     # frames kept out of the fit and scored as it runs: the best state is written (validation.py). Off until it
     # is shown to help: with `fast` on the demo clip (3 seeds) it left held-out PSNR level (27.76 dB both), joints
     # 0.11 mm worse, 10% more time; on the sun clip it went back to an earlier state whose surface was 36% worse
-    # (docs/fit.md). Not measured on balanced and full.
+    # (docs/fit.md). Not measured on balanced and paper.
     validation_frames: int = 0
     max_frames: int = 150          # longer clips are subsampled, keeping view coverage; 150: a 5-second
     #                                phone clip whole (on the 150-frame study clip, `fast` over all frames
@@ -166,9 +167,17 @@ PRESETS = {
     "preview": dict(resolution=160, texture_size=256, batch_size=10, steps=(20, 170, 0), align_steps=50,
                     environment="off", specular="off"),
     "fast": dict(resolution=256, texture_size=256, batch_size=6, steps=(200, 300, 200)),
-    # the paper's schedule: 100 / 50 / 50 epochs over every frame, batches of ~18 frames
-    "full": dict(resolution=448, texture_size=512, batch_size=18, steps=(None, None, None), max_frames=100000,
-                 displacement_grid="fine"),
+    # fast's fit carried on to convergence: twice its steps after the alignment, the joint and appearance stages'
+    # rates falling to a tenth (at constant rates the poses wander once the fit has converged). Against fast, 3 seeds
+    # each (docs/performance.md, "`full`: fast's fit carried to convergence"): held-out PSNR +0.22 dB on the
+    # phone-like clip and +0.28 on the demo, fitted frames +0.4 / +0.7 dB, joints 8% lower on the phone-like clip
+    # (level on the demo), new poses +0.8 dB in the overlap there (-0.3 on the demo, whose hand keeps MediaPipe's
+    # size, 2.5% small); 1.5-1.8x fast's time on 30 frames
+    "full": dict(resolution=256, texture_size=256, batch_size=6, steps=(400, 600, 400), final_rate_fraction=0.1),
+    # HARP's own schedule, to compare with the paper: 100 / 50 / 50 epochs over every frame, batches of ~18 frames
+    # at 448 px; the `full` preset until the one above replaced it (no better than fast on the clips measured)
+    "paper": dict(resolution=448, texture_size=512, batch_size=18, steps=(None, None, None), max_frames=100000,
+                  displacement_grid="fine"),
 }
 
 
@@ -180,13 +189,13 @@ RETIRED_PRESETS = {"balanced": "fast scored as well or better on every clip meas
 def texture_size_for(working_size):
     """The largest texture a clip worked at `working_size` pixels (long side) can fill: the power
     of two at or above it. A finer texture has texels smaller than the pixels that see them; on
-    the 256 px demo clip `full`'s 512 texture was 38% less sharp than a 256 one, compared at 256
+    the 256 px demo clip the paper's schedule's 512 texture was 38% less sharp than a 256 one, compared at 256
     (docs/fidelity.md)."""
     return max(64, 2 ** math.ceil(math.log2(max(1, working_size))))
 
 
 def settings_for(preset, frame_count, image_size=None, **overrides):
-    """FitSettings of a preset; the full preset turns epochs into steps over the frames it fits
+    """FitSettings of a preset; the paper preset turns epochs into steps over the frames it fits
     (the clip's `frame_count`, at most max_frames). With `image_size` (the clip's long side,
     pixels), the preset's texture shrinks to what the working images can fill
     (texture_size_for); a texture_size given in `overrides` is kept as given."""
@@ -199,7 +208,7 @@ def settings_for(preset, frame_count, image_size=None, **overrides):
     if image_size is not None and overrides.get("texture_size") is None:
         working = min(values["resolution"], image_size)
         values["texture_size"] = min(values["texture_size"], texture_size_for(working))
-    if preset == "full":
+    if preset == "paper":
         fitted = min(frame_count, values.get("max_frames", FitSettings.max_frames))
         per_epoch = max(1, -(-fitted // values["batch_size"]))
         values["steps"] = (100 * per_epoch, 50 * per_epoch, 50 * per_epoch)
