@@ -1,4 +1,5 @@
 """The fit end to end on a tiny synthetic clip: outputs, checkpoint and resume, rollback."""
+import dataclasses
 import json
 
 import cv2
@@ -114,6 +115,23 @@ def test_a_resumed_fit_may_switch_the_albedo_solve_but_no_stage_setting(tiny_cli
     assert fitting.fit(tiny_clip, out, resume=True, **options)["albedo_solve"]["solved_fraction"] > 0
     with pytest.raises(fitting.FitError, match=r"other settings \(texture_size\)"):
         fitting.fit(tiny_clip, out, resume=True, **{**options, "texture_size": 32})
+
+
+def test_a_fit_started_under_a_renamed_preset_resumes_under_its_new_name(tiny_clip, tmp_path):
+    """HARP's schedule was the `full` preset before it became `paper`: a fit it started resumes
+    with --preset paper, and --preset full (now other settings) says which name to use."""
+    from pipeline.fit.checkpoint import save_checkpoint
+
+    options = dict(progress="none", max_steps=2, texture_size=64, resolution=96)
+    out = tmp_path / "avatar"
+    fitting.fit(tiny_clip, out, preset="paper", **options)
+    saved = load_checkpoint(out / CHECKPOINT_FILE)
+    saved.settings = dataclasses.replace(saved.settings, preset="full")     # as written before the rename
+    save_checkpoint(out / CHECKPOINT_FILE, saved)
+    assert fitting.fit(tiny_clip, out, resume=True, preset="paper", **options)["preset"] == "paper"
+    save_checkpoint(out / CHECKPOINT_FILE, saved)
+    with pytest.raises(fitting.FitError, match="now called paper: resume with --preset paper"):
+        fitting.fit(tiny_clip, out, resume=True, preset="full", **options)
 
 
 def test_killed_fit_resumes_from_its_last_checkpoint(tiny_clip, tmp_path):

@@ -32,7 +32,7 @@ from .outputs import masked_l1, write_outputs
 from .problem import FitError, FitProblem, build_problem
 from .progress import Progress, duration_text
 from .schedule import SHADOWS_DECIDED_IN, StageKind, step_kind
-from .settings import settings_for
+from .settings import RENAMED_PRESETS, settings_for
 from .specular_share import specular_share
 from .stage_run import StageRun
 from .texture_fill import fill_avatar_albedo
@@ -433,11 +433,16 @@ class _CheckpointSaver:
             raise FitError(f"{self.path} was written by an older harp version (checkpoint {saved.version}): "
                            "fit again without --resume")
         settings, tolerated = self.problem.settings, AFTER_THE_STAGES + BUDGET
-        changed = sorted(k for k, v in vars(saved.settings).items()
-                         if vars(settings).get(k) != v and k not in tolerated)
+        saved_values = dict(vars(saved.settings))
+        renamed = RENAMED_PRESETS.get(saved_values["preset"])
+        if renamed == settings.preset:      # started under the preset's old name
+            saved_values["preset"] = renamed
+        changed = sorted(k for k, v in saved_values.items() if vars(settings).get(k) != v and k not in tolerated)
         if changed:
+            hint = (f" (it started as preset {saved_values['preset']}, which is now called {renamed}: resume with "
+                     f"--preset {renamed})" if renamed and renamed != settings.preset else "")
             raise FitError(f"{self.path} was written with other settings ({', '.join(changed)}): "
-                           "resume with the options the fit started with")
+                           f"resume with the options the fit started with{hint}")
         self.problem.avatar.load_state_dict(saved.avatar)
         if self.validator is not None:
             self.validator.resume(saved.state, saved.best_avatar)

@@ -181,6 +181,9 @@ PRESETS = {
 }
 
 
+# presets renamed: {old name: the name its settings have now} (a fit started under the old name resumes under the new)
+RENAMED_PRESETS = {"full": "paper"}      # HARP's schedule, `full` until code 9cab746
+
 # presets no longer offered, and why (a finished fit of one still loads: its checkpoint holds its settings)
 RETIRED_PRESETS = {"balanced": "fast scored as well or better on every clip measured, and balanced's longer fit let "
                                "the hand's size drift (docs/performance.md)"}
