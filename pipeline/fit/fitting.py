@@ -32,7 +32,7 @@ from .outputs import masked_l1, write_outputs
 from .problem import FitError, FitProblem, build_problem
 from .progress import Progress, duration_text
 from .schedule import SHADOWS_DECIDED_IN, StageKind, step_kind
-from .settings import RENAMED_PRESETS, settings_for
+from .settings import PRESETS, RENAMED_PRESETS, settings_for
 from .specular_share import specular_share
 from .stage_run import StageRun
 from .texture_fill import fill_avatar_albedo
@@ -328,7 +328,9 @@ def _opening_line(problem, preset, estimate):
 
 
 def _short_budget_note(budget, preset):
-    lighter = {"paper": "full, fast or preview", "full": "fast or preview", "fast": "preview"}.get(preset)
+    names = list(PRESETS)       # lightest first
+    before = names[:names.index(preset)][::-1] if preset in names else []
+    lighter = ", ".join(before[:-1]) + f" or {before[-1]}" if len(before) > 1 else "".join(before)
     return (f"; the budget leaves the stages {duration_text(max(0.0, budget.stage_seconds))} of the "
             f"{duration_text(budget.needed_seconds)} that preset {preset} needs at the least on this clip, so every "
             "stage is cut short" + (f": preset {lighter} would use the time better" if lighter
