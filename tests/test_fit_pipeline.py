@@ -134,6 +134,33 @@ def test_a_fit_started_under_a_renamed_preset_resumes_under_its_new_name(tiny_cl
         fitting.fit(tiny_clip, out, resume=True, preset="full", **options)
 
 
+def test_a_pixel_the_camera_clipped_says_only_at_least_white(tiny_clip):
+    """Where a frame is saturated, a render above it matches it and one below it is pulled up; the
+    albedo solve takes no equation from a clipped pixel."""
+    from pipeline.fit.albedo_solve import SOLVE_BATCH, _observations
+    from pipeline.fit.energy import BatchData
+    from pipeline.fit.schedule import StageKind
+
+    problem = fitting._set_up(tiny_clip, fitting.FitJob(device="cpu", max_steps=1),
+                              {"shadows": "off", "resolution": 96, "texture_size": 64}).problem
+    joint = next(stage for stage in problem.settings.schedule() if stage.kind is StageKind.JOINT)
+    frames = torch.arange(2)
+    before = _observations(problem, False, SOLVE_BATCH, 64).colour.shape[0]
+    with torch.no_grad():
+        problem.avatar.albedo.mul_(2.5)        # skin bright enough to render above white in places
+    clipped = problem.clip.masks[frames, ..., 0] > 0
+    clipped[:, ::2] = False                    # every other row of the hand saturated in the frames
+    problem.clip.images[frames] = torch.where(clipped[..., None], torch.ones(()), problem.clip.images[frames])
+    batch = BatchData(problem, joint, frames, False, torch.Generator(), True)
+    raw, rendered, target = batch.images["rgb"].detach(), batch.rendered.detach(), batch.target
+    above = (target >= 254 / 255) & (raw > target)          # the frame saturated (8-bit 254 or 255), the render above
+    assert (clipped[..., None] & (raw > 1)).sum() > 20 and (clipped[..., None] & (raw < 1)).sum() > 20
+    assert torch.equal(rendered[above], target[above])      # as good as the white it was clipped to
+    assert torch.equal(rendered[~above], raw[~above])       # the rest as rendered: below white it is pulled up
+    after = _observations(problem, False, SOLVE_BATCH, 64).colour.shape[0]
+    assert after < before - 0.3 * int(clipped.sum())         # the clipped pixels left the solve
+
+
 def test_killed_fit_resumes_from_its_last_checkpoint(tiny_clip, tmp_path):
     """A fit process killed outright (SIGKILL, no chance to save) right after a stage-end
     checkpoint: --resume finishes it with the final loss of an uninterrupted run (within 1%)."""

@@ -15,6 +15,13 @@ from ..formats import sequence_folder as seq
 
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])   # Rec. 709 weights of linear-ish RGB
+# a frame's value at or above this (8-bit 254 of 255) was clipped by the camera: it says only "at least this"
+SATURATED = 254 / 255
+
+
+def saturated(images):
+    """Bool of the same shape as `images` (values in [0, 1]): the channels the camera clipped at white."""
+    return images >= SATURATED
 
 
 @dataclasses.dataclass

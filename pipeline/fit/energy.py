@@ -7,6 +7,7 @@ import functools
 import torch
 
 from ..render.renderer import render
+from .clip_data import saturated
 from .energy_terms import SHADED, terms_for
 from .problem import FitProblem
 from .schedule import StageSpec
@@ -35,9 +36,14 @@ class BatchData:
 
     @functools.cached_property
     def rendered(self):
-        """(B, H, W, 3) the shaded render as each frame's camera saw it (its exposure gain)."""
+        """(B, H, W, 3) the shaded render as each frame's camera saw it: its exposure gain, and clipped
+        at white where the frame is (a saturated channel says only "at least white": a render above
+        it matches it, one below is pulled up)."""
         rgb = self.images["rgb"]
-        return rgb * self.problem.avatar.exposure_gain(self.frames) if self.problem.exposure_on else rgb
+        if self.problem.exposure_on:
+            rgb = rgb * self.problem.avatar.exposure_gain(self.frames)
+        target = self.target
+        return torch.where(saturated(target) & (rgb > target), target.to(rgb.dtype), rgb)
 
     @functools.cached_property
     def displacement_field(self):
