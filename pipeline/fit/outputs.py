@@ -40,7 +40,7 @@ def render_all(avatar, clip, shadows, exposure=False, batch_size=8, frames=None)
                         background=torch.zeros(3, dtype=vertices.dtype, device=vertices.device) if exposure else plates)
         if exposure:   # over black, the colour is alpha times the hand's: gain it, then composite
             images["rgb"] = images["rgb"] * avatar.exposure_gain(batch) + (1 - images["alpha"]) * plates
-        rgb.append(images["rgb"])
+        rgb.append(images["rgb"].clamp(max=1.0))     # the camera clips at white
         alpha.append(images["alpha"])
     return torch.cat(rgb), torch.cat(alpha)
 
