@@ -136,7 +136,7 @@ def test_a_fit_started_under_a_renamed_preset_resumes_under_its_new_name(tiny_cl
 
 def test_a_pixel_the_camera_clipped_says_only_at_least_white(tiny_clip):
     """Where a frame is saturated, a render above it matches it and one below it is pulled up; the
-    albedo solve takes no equation from a clipped pixel."""
+    albedo solve and the light search take no equation from a clipped pixel."""
     from pipeline.fit.albedo_solve import SOLVE_BATCH, _observations
     from pipeline.fit.energy import BatchData
     from pipeline.fit.schedule import StageKind
@@ -145,7 +145,9 @@ def test_a_pixel_the_camera_clipped_says_only_at_least_white(tiny_clip):
                               {"shadows": "off", "resolution": 96, "texture_size": 64}).problem
     joint = next(stage for stage in problem.settings.schedule() if stage.kind is StageKind.JOINT)
     frames = torch.arange(2)
+    from pipeline.fit.light_search import _pixels
     before = _observations(problem, False, SOLVE_BATCH, 64).colour.shape[0]
+    searched_before = _pixels(problem)[0].shape[0]
     with torch.no_grad():
         problem.avatar.albedo.mul_(2.5)        # skin bright enough to render above white in places
     clipped = problem.clip.masks[frames, ..., 0] > 0
@@ -159,6 +161,7 @@ def test_a_pixel_the_camera_clipped_says_only_at_least_white(tiny_clip):
     assert torch.equal(rendered[~above], raw[~above])       # the rest as rendered: below white it is pulled up
     after = _observations(problem, False, SOLVE_BATCH, 64).colour.shape[0]
     assert after < before - 0.3 * int(clipped.sum())         # the clipped pixels left the solve
+    assert _pixels(problem)[0].shape[0] < searched_before - 0.3 * int(clipped.sum())   # and the light search
 
 
 def test_killed_fit_resumes_from_its_last_checkpoint(tiny_clip, tmp_path):
