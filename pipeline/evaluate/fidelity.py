@@ -400,7 +400,8 @@ def evaluate_fidelity(avatar_folder, sequence, picture=True, cycles=False):
                                          truth_appearance, poses)
     if picture:
         window = detail_window(known.image, known.visible)
-        result["picture"] = str(write_picture(folder / FIDELITY_PICTURE, renders, fitted_albedo, known.image, window))
+        result["picture"] = str(write_picture(folder / FIDELITY_PICTURE, renders, fitted_albedo, known.image, window,
+                                              known.visible))
     (folder / FIDELITY_FILE).write_text(json.dumps(result, indent=1))
     return result
 
@@ -445,8 +446,14 @@ def shading_detail_summary(details):
             "truth_mean": float(details[:, 2].mean())}
 
 
-def write_picture(path, renders, fitted_albedo, true_albedo, window):
-    """Rows: three new poses (palm view), truth | avatar; then the detail crops, truth | avatar."""
+NOT_SCORED = 0.5     # the grey the detail crops show where the albedo is not scored
+
+
+def write_picture(path, renders, fitted_albedo, true_albedo, window, visible=None):
+    """Rows: three new poses (palm view), truth | avatar; then the detail crops, truth | avatar,
+    grey outside `visible` ((H, W) bool: the texels the texture figures score, those the clip
+    showed): texels outside the UV charts are never drawn, and their fill would read as a blocky
+    texture."""
     from ..preview_render import label
 
     tiles = []
@@ -456,10 +463,13 @@ def write_picture(path, renders, fitted_albedo, true_albedo, window):
         avatar, truth = renders[name, "back"]
         tiles.append(np.concatenate([label(_bytes(truth), "true, back"), label(_bytes(avatar), "avatar")], 1))
     row, column, side = window
-    crops = [cv2.resize(image[row:row + side, column:column + side], (SIZE, SIZE), interpolation=cv2.INTER_NEAREST)
+    shown = np.ones(true_albedo.shape[:2], bool) if visible is None else np.asarray(visible, bool)
+    crops = [cv2.resize(np.where(shown[..., None], image, NOT_SCORED)[row:row + side, column:column + side],
+                        (SIZE, SIZE), interpolation=cv2.INTER_NEAREST)
              for image in (true_albedo, fitted_albedo)]
     tiles.append(np.concatenate([label(_bytes(crops[0]), "true albedo, detail"),
-                                 label(_bytes(crops[1]), "fitted albedo")], 1))
+                                 label(_bytes(crops[1]), "fitted albedo" + ("" if visible is None else
+                                                                            " (grey: not seen)"))], 1))
     grid = [np.concatenate(tiles[i:i + 2], 1) for i in range(0, len(tiles) - 1, 2)]
     grid.append(np.concatenate([tiles[-1], np.zeros_like(tiles[-1])], 1))
     seq.write_png(path, np.concatenate(grid, 0))
