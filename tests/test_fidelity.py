@@ -220,3 +220,17 @@ def test_the_detail_crops_show_grey_where_the_texture_is_not_scored(tmp_path):
         expected = np.repeat(np.repeat(albedo, scale, 0), scale, 1)[below_label, : fidelity.SIZE // 2 - scale]
         assert np.abs(seen - expected).max() < 1 / 255 + 1e-9
         assert np.abs(crop[below_label, fidelity.SIZE // 2:] - fidelity.NOT_SCORED).max() < 1 / 255 + 1e-9
+
+
+def test_the_detail_window_is_a_mostly_seen_one():
+    """A sharp pattern of which the clip saw a thin strip loses to a milder one it saw whole."""
+    size = 64
+    truth = np.full((size, size, 3), 0.5)
+    truth[:16, :16] = np.indices((16, 16)).sum(0)[..., None] % 2            # a fine checker, top left
+    truth[40:56, 40:56] = 0.5 + 0.2 * (np.indices((16, 16))[1][..., None] % 2)   # milder stripes, bottom right
+    visible = np.zeros((size, size), bool)
+    visible[:16, :3] = True                                                  # a strip of the checker seen
+    visible[40:56, 40:56] = True
+    row, column, side = fidelity.detail_window(truth, visible, fraction=0.25)
+    assert side == 16 and (row, column) == (40, 40)
+    assert fidelity.detail_window(truth, visible, least_seen=0.0)[:2] == (0, 0)   # by energy alone: the strip

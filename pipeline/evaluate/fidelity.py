@@ -318,17 +318,24 @@ def sharpness_ratio(fitted, truth, visible):
     return float(energy(np.asarray(fitted, np.float64)) / max(energy(np.asarray(truth, np.float64)), 1e-12))
 
 
-def detail_window(truth, visible, fraction=0.25):
-    """(row, column, side) of the visible square window of the truth's albedo with the most
-    gradient energy: its most detailed visible region (a tattoo, scars, nails)."""
+def detail_window(truth, visible, fraction=0.25, least_seen=0.5):
+    """(row, column, side) of the square window of the truth's albedo with the most gradient
+    energy in its visible texels: its most detailed visible region (a tattoo, scars, nails), among
+    the windows at least `least_seen` visible where there are any (else among all)."""
     size = truth.shape[0]
     side = max(8, int(size * fraction))
+
+    def window_sums(image):
+        integral = cv2.integral(np.ascontiguousarray(image, dtype=np.float64))
+        return integral[side:, side:] - integral[:-side, side:] - integral[side:, :-side] + integral[:-side, :-side]
+
     gradient = np.zeros(truth.shape[:2])
     gradient[:, 1:] += np.square(np.diff(truth, axis=1)).sum(-1)
     gradient[1:] += np.square(np.diff(truth, axis=0)).sum(-1)
-    gradient *= visible
-    integral = cv2.integral(gradient)
-    sums = integral[side:, side:] - integral[:-side, side:] - integral[side:, :-side] + integral[:-side, :-side]
+    sums = window_sums(gradient * visible)
+    seen = window_sums(visible) / side ** 2
+    if (seen >= least_seen).any():
+        sums = np.where(seen >= least_seen, sums, -1.0)
     row, column = np.unravel_index(np.argmax(sums), sums.shape)
     return int(row), int(column), side
 
