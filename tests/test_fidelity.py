@@ -196,3 +196,41 @@ def test_an_albedo_darker_all_over_is_as_sharp_at_the_truths_brightness(clip, tm
     texture = fidelity.evaluate_fidelity(folder, clip, picture=False)["texture"]
     assert texture["sharpness_ratio"] == pytest.approx(0.64, abs=0.04)   # 8-bit rounding: 0.665
     assert texture["sharpness_ratio_scaled"] == pytest.approx(1.0, abs=0.06)   # the rounding again: 1.04
+
+
+def test_the_detail_crops_show_grey_where_the_texture_is_not_scored(tmp_path):
+    """fidelity.png's detail crops: the truth's and the avatar's albedo where the clip showed them,
+    grey (NOT_SCORED) where it did not, in both; a texel outside the charts is never drawn."""
+    size = 64
+    true_albedo = np.random.default_rng(0).uniform(0.2, 0.8, (size, size, 3))
+    fitted_albedo = np.clip(true_albedo + 0.1, 0, 1)
+    visible = np.zeros((size, size), bool)
+    visible[:, : size // 2] = True                      # the crop's left half was seen
+    render = np.zeros((fidelity.SIZE, fidelity.SIZE, 3))
+    renders = {(name, view): (render, render) for name in fidelity.PICTURE_POSES for view in fidelity.VIEWS}
+    path = fidelity.write_picture(tmp_path / "fidelity.png", renders, fitted_albedo, true_albedo,
+                                  (0, 0, size), visible)
+    picture = seq.read_rgb(path).astype(np.float64) / 255
+    crops = picture[3 * fidelity.SIZE:, : 2 * fidelity.SIZE]
+    true_crop, fitted_crop = crops[:, : fidelity.SIZE], crops[:, fidelity.SIZE:]
+    scale = fidelity.SIZE // size                       # each texel drawn as scale x scale pixels
+    below_label = slice(2 * scale * 4, None)            # rows clear of the label at the top
+    for crop, albedo in ((true_crop, true_albedo), (fitted_crop, fitted_albedo)):
+        seen = crop[below_label, : fidelity.SIZE // 2 - scale]
+        expected = np.repeat(np.repeat(albedo, scale, 0), scale, 1)[below_label, : fidelity.SIZE // 2 - scale]
+        assert np.abs(seen - expected).max() < 1 / 255 + 1e-9
+        assert np.abs(crop[below_label, fidelity.SIZE // 2:] - fidelity.NOT_SCORED).max() < 1 / 255 + 1e-9
+
+
+def test_the_detail_window_is_a_mostly_seen_one():
+    """A sharp pattern of which the clip saw a thin strip loses to a milder one it saw whole."""
+    size = 64
+    truth = np.full((size, size, 3), 0.5)
+    truth[:16, :16] = np.indices((16, 16)).sum(0)[..., None] % 2            # a fine checker, top left
+    truth[40:56, 40:56] = 0.5 + 0.2 * (np.indices((16, 16))[1][..., None] % 2)   # milder stripes, bottom right
+    visible = np.zeros((size, size), bool)
+    visible[:16, :3] = True                                                  # a strip of the checker seen
+    visible[40:56, 40:56] = True
+    row, column, side = fidelity.detail_window(truth, visible, fraction=0.25)
+    assert side == 16 and (row, column) == (40, 40)
+    assert fidelity.detail_window(truth, visible, least_seen=0.0)[:2] == (0, 0)   # by energy alone: the strip

@@ -318,17 +318,24 @@ def sharpness_ratio(fitted, truth, visible):
     return float(energy(np.asarray(fitted, np.float64)) / max(energy(np.asarray(truth, np.float64)), 1e-12))
 
 
-def detail_window(truth, visible, fraction=0.25):
-    """(row, column, side) of the visible square window of the truth's albedo with the most
-    gradient energy: its most detailed visible region (a tattoo, scars, nails)."""
+def detail_window(truth, visible, fraction=0.25, least_seen=0.5):
+    """(row, column, side) of the square window of the truth's albedo with the most gradient
+    energy in its visible texels: its most detailed visible region (a tattoo, scars, nails), among
+    the windows at least `least_seen` visible where there are any (else among all)."""
     size = truth.shape[0]
     side = max(8, int(size * fraction))
+
+    def window_sums(image):
+        integral = cv2.integral(np.ascontiguousarray(image, dtype=np.float64))
+        return integral[side:, side:] - integral[:-side, side:] - integral[side:, :-side] + integral[:-side, :-side]
+
     gradient = np.zeros(truth.shape[:2])
     gradient[:, 1:] += np.square(np.diff(truth, axis=1)).sum(-1)
     gradient[1:] += np.square(np.diff(truth, axis=0)).sum(-1)
-    gradient *= visible
-    integral = cv2.integral(gradient)
-    sums = integral[side:, side:] - integral[:-side, side:] - integral[side:, :-side] + integral[:-side, :-side]
+    sums = window_sums(gradient * visible)
+    seen = window_sums(visible) / side ** 2
+    if (seen >= least_seen).any():
+        sums = np.where(seen >= least_seen, sums, -1.0)
     row, column = np.unravel_index(np.argmax(sums), sums.shape)
     return int(row), int(column), side
 
@@ -400,7 +407,8 @@ def evaluate_fidelity(avatar_folder, sequence, picture=True, cycles=False):
                                          truth_appearance, poses)
     if picture:
         window = detail_window(known.image, known.visible)
-        result["picture"] = str(write_picture(folder / FIDELITY_PICTURE, renders, fitted_albedo, known.image, window))
+        result["picture"] = str(write_picture(folder / FIDELITY_PICTURE, renders, fitted_albedo, known.image, window,
+                                              known.visible))
     (folder / FIDELITY_FILE).write_text(json.dumps(result, indent=1))
     return result
 
@@ -445,8 +453,14 @@ def shading_detail_summary(details):
             "truth_mean": float(details[:, 2].mean())}
 
 
-def write_picture(path, renders, fitted_albedo, true_albedo, window):
-    """Rows: three new poses (palm view), truth | avatar; then the detail crops, truth | avatar."""
+NOT_SCORED = 0.5     # the grey the detail crops show where the albedo is not scored
+
+
+def write_picture(path, renders, fitted_albedo, true_albedo, window, visible=None):
+    """Rows: three new poses (palm view), truth | avatar; then the detail crops, truth | avatar,
+    grey outside `visible` ((H, W) bool: the texels the texture figures score, those the clip
+    showed): texels outside the UV charts are never drawn, and their fill would read as a blocky
+    texture."""
     from ..preview_render import label
 
     tiles = []
@@ -456,10 +470,13 @@ def write_picture(path, renders, fitted_albedo, true_albedo, window):
         avatar, truth = renders[name, "back"]
         tiles.append(np.concatenate([label(_bytes(truth), "true, back"), label(_bytes(avatar), "avatar")], 1))
     row, column, side = window
-    crops = [cv2.resize(image[row:row + side, column:column + side], (SIZE, SIZE), interpolation=cv2.INTER_NEAREST)
+    shown = np.ones(true_albedo.shape[:2], bool) if visible is None else np.asarray(visible, bool)
+    crops = [cv2.resize(np.where(shown[..., None], image, NOT_SCORED)[row:row + side, column:column + side],
+                        (SIZE, SIZE), interpolation=cv2.INTER_NEAREST)
              for image in (true_albedo, fitted_albedo)]
     tiles.append(np.concatenate([label(_bytes(crops[0]), "true albedo, detail"),
-                                 label(_bytes(crops[1]), "fitted albedo")], 1))
+                                 label(_bytes(crops[1]), "fitted albedo" + ("" if visible is None else
+                                                                            " (grey: not seen)"))], 1))
     grid = [np.concatenate(tiles[i:i + 2], 1) for i in range(0, len(tiles) - 1, 2)]
     grid.append(np.concatenate([tiles[-1], np.zeros_like(tiles[-1])], 1))
     seq.write_png(path, np.concatenate(grid, 0))
