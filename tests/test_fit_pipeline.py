@@ -164,6 +164,33 @@ def test_a_pixel_the_camera_clipped_says_only_at_least_white(tiny_clip):
     assert _pixels(problem)[0].shape[0] < searched_before - 0.3 * int(clipped.sum())   # and the light search
 
 
+def test_a_rollback_compares_what_follows_with_the_snapshot_it_returned_to(tiny_clip):
+    """A full-batch loss that rises past DIVERGENCE_FACTOR times its best is rolled back to the
+    last snapshot; the steps after it are compared with that snapshot's loss, not with the best
+    the undone steps had reached (else the snapshot itself counts as divergence at every step:
+    a 3-frame clip's alignment rolled back 87 times in a row and never moved again)."""
+    from pipeline.fit import stage_run
+    from pipeline.fit.checkpoint import FitState
+    from pipeline.fit.schedule import StageKind
+
+    problem = fitting._set_up(tiny_clip, fitting.FitJob(device="cpu", max_steps=1),
+                              {"shadows": "off", "resolution": 64, "texture_size": 64}).problem
+    schedule = problem.settings.schedule()
+    align = next(stage for stage in schedule if stage.kind is StageKind.ALIGN)
+    align = dataclasses.replace(align, steps=40)
+    # the loss falls fast after the snapshot at step ROLLBACK_EVERY (5.0), jumps (40: rolled back), and
+    # the state restored to that snapshot measures 4.9 and goes on falling
+    losses = [100.0 / (index + 1) for index in range(stage_run.ROLLBACK_EVERY - 1)] + [5.0, 3.0, 2.0, 40.0]
+    losses += [4.9, 4.5, 4.0]
+    scripted = iter(losses)
+    run = stage_run.StageRun(problem, align, FitState.fresh(schedule, "off"), torch.Generator().manual_seed(0))
+    run.energy = lambda batch, backward=True: (next(scripted), {})
+    events = [run.step().event for _ in losses]
+    assert [event is not None for event in events] == [loss == 40.0 for loss in losses]
+    assert "loss rose to 40 from 2" in events[losses.index(40.0)]
+    assert run.best_loss == 4.0
+
+
 def test_killed_fit_resumes_from_its_last_checkpoint(tiny_clip, tmp_path):
     """A fit process killed outright (SIGKILL, no chance to save) right after a stage-end
     checkpoint: --resume finishes it with the final loss of an uninterrupted run (within 1%)."""

@@ -112,6 +112,7 @@ class StageRun:
             for group in self.optimiser.param_groups:   # saved before the rates decayed: constant
                 group.setdefault("base_lr", group["lr"])
         self.last_good = self._snapshot()
+        self.last_good_loss = math.inf   # the loss last measured before the snapshot (unknown at the start)
         self.best_loss = math.inf
 
     @property
@@ -172,15 +173,18 @@ class StageRun:
         self.state.step += 1
         if not math.isfinite(loss) or not self._finite() or diverged:
             self._restore(self.last_good)
+            # the best since the snapshot is gone with what came after it: compared with it, the snapshot's own
+            # loss would count as divergence at every step (a 3-frame clip rolled back 87 times in a row)
+            problem = f"loss rose to {loss:.4g} from {self.best_loss:.4g}" if diverged else "non-finite loss"
+            self.best_loss = self.last_good_loss
             for group in self.optimiser.param_groups:
                 group["base_lr"] *= 0.5
                 group["lr"] *= 0.5
-            problem = f"loss rose to {loss:.4g} from {self.best_loss:.4g}" if diverged else "non-finite loss"
             event = f"{problem} at {self.stage.name} step {self.state.step - 1}: rolled back, learning rates halved"
             self.state.events.append(event)
             return StepResult(loss, terms, event)
         if self.state.step % ROLLBACK_EVERY == 0:
-            self.last_good = self._snapshot()
+            self.last_good, self.last_good_loss = self._snapshot(), loss
         self.state.history.append({"stage": self.stage.name, "step": self.state.step, "loss": loss, **terms})
         return StepResult(loss, terms)
 
