@@ -259,21 +259,26 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
     with timed("occlusion"):
         problem.avatar.measure_occlusion(exact=True)   # at the final poses, in a resumed fit too
     solving = problem.settings.solve_albedo and not problem.known_appearance
+    seen = problem   # the frames the texture is solved from: at solve_resolution where it is finer
+    if solving and (state.albedo_solve is None or state.texture_fill is None):
+        with timed("albedo_solve"):
+            seen = problem.at_resolution(problem.settings.solve_resolution)
     if state.albedo_solve is None and solving:
         with timed("albedo_solve"):
-            state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on)
+            state.albedo_solve = solve_avatar_albedo(seen, state.shadows.on)
         reporter.log(f"albedo solved from the frames on the final geometry and light: "
                      f"{state.albedo_solve['solved_fraction']:.0%} of the texels "
                      f"(mean change {state.albedo_solve['mean_change']:.3f})"
-                     + (" with the environment light" if "environment_strength" in state.albedo_solve else ""))
+                     + (" with the environment light" if "environment_strength" in state.albedo_solve else "")
+                     + (f", frames at {max(seen.clip.height, seen.clip.width)} px" if seen is not problem else ""))
         with timed("light_decisions"):
-            _decide_light(problem, state, reporter, solved=True)
+            _decide_light(problem, state, reporter, solved=seen)
         save()
     with timed("light_decisions"):
-        _decide_light(problem, state, reporter, solved=False)     # without an albedo solve: as the stages left it
+        _decide_light(problem, state, reporter, solved=None)     # without an albedo solve: as the stages left it
     if state.texture_fill is None and not problem.known_appearance:
         with timed("texture_fill"):
-            state.texture_fill = fill_avatar_albedo(problem.avatar, decided_texels(problem))
+            state.texture_fill = fill_avatar_albedo(problem.avatar, decided_texels(seen))
         reporter.log(f"albedo: {state.texture_fill['unseen_fraction']:.0%} of the texels not decided by the frames "
                      f"(never seen, or only at the silhouette), filled through the surface "
                      f"(seam contrast {state.texture_fill['seam_contrast_before']:.3f} -> "
@@ -360,12 +365,13 @@ def _decide_shadows(problem, run, reporter):
 
 def _decide_light(problem, state, reporter, solved):
     """The `auto` environment light and specular lobe, each decided once after the stages (after
-    the albedo solve, when `solved`, which solves the environment with the albedo and takes the
-    lobe's sheen off the frames); the albedo is solved again, once, without what they switch off."""
+    the albedo solve, when `solved` is the problem it read: it solves the environment with the albedo
+    and takes the lobe's sheen off the frames); the albedo is solved again from `solved`, once,
+    without what they switch off."""
     switched_off = _decide_environment(problem, state, reporter)
     switched_off = _decide_specular(problem, state, reporter) or switched_off
-    if switched_off and solved:
-        state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on)
+    if switched_off and solved is not None:
+        state.albedo_solve = solve_avatar_albedo(solved, state.shadows.on)
 
 
 def _decide_environment(problem, state, reporter) -> bool:

@@ -86,6 +86,17 @@ class FitProblem:
     def all_frames(self) -> torch.Tensor:
         return torch.arange(len(self.frames), device=self.device)
 
+    def at_resolution(self, resolution) -> "FitProblem":
+        """The same problem (its avatar itself, not a copy) over its frames loaded at `resolution`
+        (long side, pixels; never above the clip's own size): the view the albedo solve reads. Itself
+        when that is the size it already works at."""
+        if resolution is None:
+            return self
+        clip = load_clip(self.sequence, resolution, self.frames, device=self.device, dtype=self.clip.images.dtype)
+        if clip.images.shape[1:3] == self.clip.images.shape[1:3]:
+            return self
+        return dataclasses.replace(self, clip=clip, silhouette_weight=None)
+
     @functools.cached_property
     def photometric_inside(self) -> torch.Tensor:
         """(F, H, W, 1) bool: each frame's mask eroded as the photometric term compares it,
