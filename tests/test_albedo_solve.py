@@ -125,6 +125,47 @@ def test_detail_finer_than_a_texel_is_solved_on_a_finer_texture(tmp_path_factory
     assert errors[2] < 0.8 * errors[1]
 
 
+def test_frames_read_finer_than_the_working_size_solve_a_sharper_albedo(tmp_path_factory):
+    """The stages work at 64 px; the clip holds 256 px frames of the sharp albedo. Solved from the
+    frames at their own size (FitSettings.solve_resolution, FitProblem.at_resolution: the same
+    avatar, the frames reloaded), the albedo is nearer the truth and keeps more of its rings than
+    solved from the working frames."""
+    import cv2
+    from pipeline.formats import sequence_folder as seq
+
+    folder = tmp_path_factory.mktemp("solve_resolution") / "clip"
+    info = write_clip(folder, OPEN, frames=FRAMES, size=256, turn_degrees=25)
+    initialise_sequence(folder, "gt-noise", noise_degrees=0.0, noise_translation_m=0.0, log=lambda *a: None)
+    settings = settings_for("fast", FRAMES, resolution=64, texture_size=TEXTURE, solve_resolution=256)
+    problem = build_problem(folder, settings, np.arange(FRAMES), "cpu")
+    fine = problem.at_resolution(settings.solve_resolution)
+    assert fine.avatar is problem.avatar and fine.clip.images.shape[1:3] == (256, 256)
+    assert torch.allclose(fine.clip.K[:, :2], 4 * problem.clip.K[:, :2])      # the same camera, 4x the pixels
+    assert problem.at_resolution(None) is problem and problem.at_resolution(64) is problem
+    assert problem.at_resolution(1000).clip.images.shape[1:3] == (256, 256)   # never above the clip's own size
+    truth = torch.as_tensor(sharp_albedo(), dtype=problem.avatar.albedo.dtype)
+    with torch.no_grad():     # the clip's frames redrawn with the sharp albedo, at their own size
+        everything = torch.arange(FRAMES)
+        vertices, _ = problem.avatar.posed(everything)
+        images = render(vertices, problem.avatar.mesh, fine.clip.K, 256, 256, outputs=("rgb",),
+                        appearance=dataclasses.replace(problem.avatar.appearance(), albedo=truth),
+                        light=problem.avatar.light(False, everything, vertices))["rgb"]
+    for index, image in enumerate(images.clamp(0, 1).numpy()):
+        cv2.imwrite(str(seq.frame_path(folder, info, index)), np.round(255 * image[..., ::-1]).astype(np.uint8))
+    problem = build_problem(folder, settings, np.arange(FRAMES), "cpu")
+    errors, sharpness = {}, {}
+    for name, view in (("working", problem), ("fine", problem.at_resolution(settings.solve_resolution))):
+        albedo, read = solved_albedo(view, shadows=False)
+        read = read.numpy() & (problem.uv_mask.numpy() > 0)
+        if name == "working":
+            both = read
+        errors[name] = np.abs(albedo.numpy() - truth.numpy()).mean(0)[both].mean()
+        sharpness[name] = gradient_energy(albedo.numpy(), both) / gradient_energy(truth.numpy(), both)
+    # measured: mean error 0.0043 against 0.034, 0.91 of the truth's gradient energy against 0.48
+    assert errors["fine"] < 0.3 * errors["working"], errors
+    assert sharpness["fine"] > 1.5 * sharpness["working"], sharpness
+
+
 def test_the_solve_divides_the_exposure_gains_out(problem):
     problem, _ = problem
     reference, read = solved_albedo(problem, shadows=False)
