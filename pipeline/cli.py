@@ -78,7 +78,7 @@ def _fit(args):
                  validation_frames=args.validation_frames, workers=args.workers, environment=args.environment,
                  specular=args.specular, colour_model=args.colour_model, occlusion=args.occlusion,
                  restart_lost_frames=args.restart_lost_frames, albedo_facing=args.albedo_facing,
-                 light_search=args.light_search,
+                 light_search=args.light_search, solve_resolution=args.solve_resolution,
                  **({} if args.seed is None else {"seed": args.seed}),
                  **({} if weights is None else {"weights": weights}))
     wall = report.get("wall_seconds")
@@ -210,6 +210,10 @@ def build_parser():
     fit.add_argument("--solve-albedo", action=argparse.BooleanOptionalAction, default=None,
                      help="solve the final albedo from the frames once geometry and light are final (default: on; "
                           "sharp detail such as tattoos, docs/fidelity.md)")
+    fit.add_argument("--solve-resolution", type=int, default=None, metavar="PX",
+                     help="the long side, pixels, of the frames the final albedo is solved from: finer than the "
+                          "working images, the texture takes what the footage shows of the skin (never above the "
+                          "clip's own size; 0: the working size; default: the preset's)")
     fit.add_argument("--exposure", choices=("auto", "on", "off"), default=None,
                      help="per-frame exposure and white-balance gains: auto (default) switches them on when the "
                           "footage's background brightness changes over the clip (a phone's automatic exposure)")

@@ -141,7 +141,9 @@ def test_frames_read_finer_than_the_working_size_solve_a_sharper_albedo(tmp_path
     fine = problem.at_resolution(settings.solve_resolution)
     assert fine.avatar is problem.avatar and fine.clip.images.shape[1:3] == (256, 256)
     assert torch.allclose(fine.clip.K[:, :2], 4 * problem.clip.K[:, :2])      # the same camera, 4x the pixels
-    assert problem.at_resolution(None) is problem and problem.at_resolution(64) is problem
+    assert all(problem.at_resolution(size) is problem for size in (None, 0, 64))     # the working size itself
+    with pytest.raises(ValueError, match="solve_resolution"):
+        dataclasses.replace(settings, solve_resolution=8)
     assert problem.at_resolution(1000).clip.images.shape[1:3] == (256, 256)   # never above the clip's own size
     truth = torch.as_tensor(sharp_albedo(), dtype=problem.avatar.albedo.dtype)
     with torch.no_grad():     # the clip's frames redrawn with the sharp albedo, at their own size

@@ -89,8 +89,8 @@ class FitProblem:
     def at_resolution(self, resolution) -> "FitProblem":
         """The same problem (its avatar itself, not a copy) over its frames loaded at `resolution`
         (long side, pixels; never above the clip's own size): the view the albedo solve reads. Itself
-        when that is the size it already works at."""
-        if resolution is None:
+        when that is the size it already works at (or `resolution` is None or 0)."""
+        if not resolution:
             return self
         clip = load_clip(self.sequence, resolution, self.frames, device=self.device, dtype=self.clip.images.dtype)
         if clip.images.shape[1:3] == self.clip.images.shape[1:3]:

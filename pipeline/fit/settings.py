@@ -51,7 +51,7 @@ class FitSettings:
     solve_albedo: bool = True       # the final albedo solved from the frames (albedo_solve.py)
     # the long side, pixels, of the frames the albedo solve reads (FitProblem.at_resolution): the stages fit the
     # shape, poses and light at `resolution`, but the texture can take what finer frames show of the skin (never
-    # above the clip's own size). None: the working resolution
+    # above the clip's own size). None or 0: the working resolution
     solve_resolution: int | None = None
     shadows: str = "auto"          # auto | on | off
     exposure: str = "auto"         # per-frame exposure gains: auto | on | off (problem.py decides auto)
@@ -119,8 +119,8 @@ class FitSettings:
             raise ValueError(f"light_search must be 'on' or 'off', got {self.light_search!r}")
         if self.albedo_facing not in ("on", "off"):
             raise ValueError(f"albedo_facing must be 'on' or 'off', got {self.albedo_facing!r}")
-        if self.solve_resolution is not None and self.solve_resolution < 16:
-            raise ValueError(f"solve_resolution must be at least 16 px (None: the working resolution), "
+        if self.solve_resolution and self.solve_resolution < 16:
+            raise ValueError(f"solve_resolution must be at least 16 px (0 or None: the working resolution), "
                              f"got {self.solve_resolution}")
         if not 0.0 < self.final_rate_fraction <= 1.0:
             raise ValueError(f"final_rate_fraction must be in (0, 1] (1: constant rates), "
