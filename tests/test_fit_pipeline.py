@@ -178,17 +178,17 @@ def test_a_rollback_compares_what_follows_with_the_snapshot_it_returned_to(tiny_
     schedule = problem.settings.schedule()
     align = next(stage for stage in schedule if stage.kind is StageKind.ALIGN)
     align = dataclasses.replace(align, steps=40)
-    # the loss falls fast after the snapshot at step ROLLBACK_EVERY (5.0), jumps (40: rolled back), and
-    # the state restored to that snapshot measures 4.9 and goes on falling
-    losses = [100.0 / (index + 1) for index in range(stage_run.ROLLBACK_EVERY - 1)] + [5.0, 3.0, 2.0, 40.0]
-    losses += [4.9, 4.5, 4.0]
+    # the snapshot taken after step ROLLBACK_EVERY measures 3.0 at the next step; the loss falls to 1.5, jumps
+    # (40: rolled back), and the state restored to that snapshot measures 3.0 again and goes on falling
+    losses = [100.0 / (index + 1) for index in range(stage_run.ROLLBACK_EVERY - 1)] + [5.0, 3.0, 1.5, 40.0]
+    losses += [3.0, 2.5, 2.2]
     scripted = iter(losses)
     run = stage_run.StageRun(problem, align, FitState.fresh(schedule, "off"), torch.Generator().manual_seed(0))
     run.energy = lambda batch, backward=True: (next(scripted), {})
     events = [run.step().event for _ in losses]
     assert [event is not None for event in events] == [loss == 40.0 for loss in losses]
-    assert "loss rose to 40 from 2" in events[losses.index(40.0)]
-    assert run.best_loss == 4.0
+    assert "loss rose to 40 from 1.5" in events[losses.index(40.0)]
+    assert run.best_loss == 2.2
 
 
 def test_killed_fit_resumes_from_its_last_checkpoint(tiny_clip, tmp_path):

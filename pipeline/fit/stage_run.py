@@ -112,7 +112,8 @@ class StageRun:
             for group in self.optimiser.param_groups:   # saved before the rates decayed: constant
                 group.setdefault("base_lr", group["lr"])
         self.last_good = self._snapshot()
-        self.last_good_loss = math.inf   # the loss last measured before the snapshot (unknown at the start)
+        self.last_good_loss = math.inf   # the loss at the snapshot's parameters (measured by the step after it)
+        self.snapshot_unmeasured = True
         self.best_loss = math.inf
 
     @property
@@ -168,6 +169,8 @@ class StageRun:
         if math.isfinite(loss):
             self._mask_frozen_gradients()
             self._lazy_step(batch)
+        if self.snapshot_unmeasured and math.isfinite(loss):    # this step's loss is the snapshot's
+            self.last_good_loss, self.snapshot_unmeasured = loss, False
         diverged = self.stage.full_batch and loss > DIVERGENCE_FACTOR * self.best_loss  # full batches compare
         self.best_loss = min(self.best_loss, loss) if math.isfinite(loss) else self.best_loss
         self.state.step += 1
@@ -184,7 +187,7 @@ class StageRun:
             self.state.events.append(event)
             return StepResult(loss, terms, event)
         if self.state.step % ROLLBACK_EVERY == 0:
-            self.last_good, self.last_good_loss = self._snapshot(), loss
+            self.last_good, self.snapshot_unmeasured = self._snapshot(), True
         self.state.history.append({"stage": self.stage.name, "step": self.state.step, "loss": loss, **terms})
         return StepResult(loss, terms)
 
