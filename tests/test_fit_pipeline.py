@@ -191,6 +191,20 @@ def test_a_rollback_compares_what_follows_with_the_snapshot_it_returned_to(tiny_
     assert run.best_loss == 2.2
 
 
+def test_a_checkpoint_with_a_setting_this_version_does_not_know_is_one_line(tiny_clip, tmp_path):
+    """A fit written by a newer harp (a setting this one lacks) is refused in one FitError line
+    naming the setting, not a TypeError from deep inside."""
+    out = tmp_path / "avatar"
+    fitting.fit(tiny_clip, out, progress="none", max_steps=1, texture_size=64, batch_size=2, resolution=96)
+    saved = torch.load(out / CHECKPOINT_FILE, weights_only=True)
+    saved["settings"]["a_setting_from_the_future"] = 1
+    torch.save(saved, out / CHECKPOINT_FILE)
+    with pytest.raises(fitting.FitError, match="a_setting_from_the_future.*newer version"):
+        load_checkpoint(out / CHECKPOINT_FILE)
+    with pytest.raises(fitting.FitError, match="a_setting_from_the_future"):
+        fitting.fit(tiny_clip, out, resume=True, progress="none")
+
+
 def test_killed_fit_resumes_from_its_last_checkpoint(tiny_clip, tmp_path):
     """A fit process killed outright (SIGKILL, no chance to save) right after a stage-end
     checkpoint: --resume finishes it with the final loss of an uninterrupted run (within 1%)."""

@@ -138,7 +138,11 @@ def load_checkpoint(path, device=None) -> Checkpoint:
         settings["exposure"] = "off"
         avatar["exposure"] = torch.zeros(len(avatar["global_orient"]), 3, dtype=avatar["global_orient"].dtype,
                                          device=avatar["global_orient"].device)
-    settings = FitSettings.from_dict(settings)
+    try:
+        settings = FitSettings.from_dict(settings)
+    except ValueError as error:     # a newer harp's setting, or a value this one refuses
+        raise FitError(f"{path} holds settings this harp cannot use ({error}): it was written by a newer "
+                       "version; update harp, or fit again") from None
     if version < 4:      # the schedule in force was the settings' steps (a budget rewrote them)
         state["schedule"] = settings.schedule().to_list()
     if version < 5:      # no environment light

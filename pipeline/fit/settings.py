@@ -163,6 +163,9 @@ class FitSettings:
         values.setdefault("occlusion", "off")             # saved before the room light's occlusion
         values.setdefault("restart_lost_frames", "off")   # saved before lost frames were started again
         values.setdefault("light_search", "off")          # saved before the light was searched
+        unknown = sorted(set(values) - {field.name for field in dataclasses.fields(cls)})
+        if unknown:
+            raise ValueError(f"settings this version does not know: {', '.join(unknown)}")
         if "steps" in values:
             values["steps"] = tuple(values["steps"])
         return cls(**values)
