@@ -153,6 +153,7 @@ def test_a_pixel_the_camera_clipped_says_only_at_least_white(tiny_clip):
     clipped = problem.clip.masks[frames, ..., 0] > 0
     clipped[:, ::2] = False                    # every other row of the hand saturated in the frames
     problem.clip.images[frames] = torch.where(clipped[..., None], torch.ones(()), problem.clip.images[frames])
+    problem.__dict__.pop("saturated", None)     # the frames changed: their clipped channels are found again
     batch = BatchData(problem, joint, frames, False, torch.Generator(), True)
     raw, rendered, target = batch.images["rgb"].detach(), batch.rendered.detach(), batch.target
     above = (target >= 254 / 255) & (raw > target)          # the frame saturated (8-bit 254 or 255), the render above

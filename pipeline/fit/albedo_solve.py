@@ -52,7 +52,6 @@ from ..render.rasterize import pixel_rays
 from ..render.renderer import Appearance, render
 from ..render.shading import environment_basis_values, sphere_radiance_basis
 from ..render.texture import bilinear_texels
-from .clip_data import saturated
 
 MIN_COVERAGE = 1.0      # bilinear weight (about one pixel's worth) a texel needs to be solved
 MIN_SHADING = 0.05      # pixels darker than this (shading of an albedo of 1) carry no colour
@@ -266,8 +265,7 @@ def _observations(problem, shadows, batch_size, size):
             if occluded:   # the harmonics' light less what the hand keeps from the point (render/occlusion.py)
                 basis = basis - images["lost_light"][..., 1:]
             shading = base + gain * (basis @ environment)
-        usable = problem.compared_pixels(batch) & (images["alpha"][..., 0] > 0.5)   # as the photometric term
-        usable = usable & ~saturated(clip.images[batch]).any(-1)     # a clipped pixel is no equation
+        usable = problem.colour_pixels(batch) & (images["alpha"][..., 0] > 0.5)   # as the photometric term
         drawn = linear_to_srgb(shading) if linear else shading   # an albedo of 1's values in the frame
         usable = usable & (drawn.min(-1).values > MIN_SHADING)
         if specular is not None:

@@ -42,6 +42,8 @@ class BatchData:
         rgb = self.images["rgb"]
         if self.problem.exposure_on:
             rgb = rgb * self.problem.avatar.exposure_gain(self.frames)
+        if self.problem.saturated is None:     # nothing clipped in the clip
+            return rgb
         target = self.target
         return torch.where(saturated(target) & (rgb > target), target.to(rgb.dtype), rgb)
 

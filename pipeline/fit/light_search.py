@@ -20,7 +20,7 @@ albedo (upsampled to the texture, texels no frame showed at the albedo's mean): 
 start, the albedo's light palm and dark back pulled the light away again in the joint stage
 (the phone-like clip's seed 0: searched to the window, fitted to above the hand).
 
-Pixels the camera clipped at white (clip_data.saturated) are left out, as in the albedo solve.
+Pixels the camera clipped at white are left out, as in the albedo solve (FitProblem.colour_pixels).
 In the linear colour model the frames are decoded first (the shading multiplies linear light);
 the exposure gains (1 at this point unless resumed) are divided out. The environment light, the
 specular lobe and shadows are left out: the search is for the light's direction, which they do
@@ -34,7 +34,6 @@ from ..formats.colour_model import linear_to_srgb, srgb_to_linear
 from ..formats.environment_light import sphere_directions
 from ..render.rasterize import pixel_rays
 from ..render.renderer import render
-from .clip_data import saturated
 
 CANDIDATES = 64                      # directions (a Fibonacci lattice over the sphere)
 AMBIENTS = (0.15, 0.3, 0.5, 0.7)     # ambient ratios tried with each
@@ -97,8 +96,7 @@ def _pixels(problem):
         vertices, _ = avatar.posed(batch)
         images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width,
                         outputs=("alpha", "uv", "normal", "depth"), antialiased=False)
-        usable = problem.compared_pixels(batch) & (images["alpha"][..., 0] > 0.5)
-        usable = usable & ~saturated(clip.images[batch]).any(-1)     # a clipped colour is no measure of shading
+        usable = problem.colour_pixels(batch) & (images["alpha"][..., 0] > 0.5)
         colour = clip.images[batch].double()
         if problem.exposure_on:
             colour = colour / avatar.exposure_gain(batch).double().expand_as(colour)

@@ -23,7 +23,7 @@ from ..handmodel.subdivision import midpoint_parents
 from ..handmodel.uv_atlas import uv_mask as atlas_mask
 from ..render.rasterize import project
 from .avatar import MATERIAL, Avatar
-from .clip_data import ClipData, load_clip
+from .clip_data import ClipData, load_clip, saturated
 from .energy_terms import ENERGY_TERMS, is_on
 from .losses import PHOTOMETRIC_EROSION, eroded_mask
 from .mask_cuts import cut_regions
@@ -111,6 +111,20 @@ class FitProblem:
         reads these, and a texel no such pixel shows counts as unseen (texture_fill.py)."""
         inside = self.photometric_inside[..., 0] if frames is None else self.photometric_inside[frames][..., 0]
         return inside if self.clip.valid is None else inside & (self.clip.valid[..., 0] > 0.5)
+
+    @functools.cached_property
+    def saturated(self) -> torch.Tensor | None:
+        """(F, H, W, 3) bool: the frames' channels the camera clipped at white (clip_data.saturated),
+        found once; None when the clip has none (most clips: then nothing is done for them)."""
+        clipped = saturated(self.clip.images)
+        return clipped if bool(clipped.any()) else None
+
+    def colour_pixels(self, frames) -> torch.Tensor:
+        """(B, H, W) bool: the compared pixels of `frames` whose colour measures the light, those with
+        no channel clipped at white (a clipped one says only "at least white"). The albedo solve and
+        the light search read these."""
+        pixels = self.compared_pixels(frames)
+        return pixels if self.saturated is None else pixels & ~self.saturated[frames].any(-1)
 
 
 def default_device(device=None):
