@@ -192,6 +192,31 @@ def test_a_rollback_compares_what_follows_with_the_snapshot_it_returned_to(tiny_
     assert run.best_loss == 2.2
 
 
+def test_a_batch_loss_far_above_the_stages_recent_ones_is_rolled_back(tiny_clip):
+    """In a stage of batches (no single best to compare with) a loss above BATCH_DIVERGENCE_FACTOR
+    times the median of the stage's recent batch losses is divergence: rolled back, rates halved.
+    The batches' ordinary spread (here up to 5x, as a stage's second step reaches) is not."""
+    from pipeline.fit import stage_run
+    from pipeline.fit.checkpoint import FitState
+    from pipeline.fit.schedule import StageKind
+
+    problem = fitting._set_up(tiny_clip, fitting.FitJob(device="cpu", max_steps=1),
+                              {"shadows": "off", "resolution": 64, "texture_size": 64}).problem
+    schedule = problem.settings.schedule()
+    geometry = dataclasses.replace(next(stage for stage in schedule if stage.kind is StageKind.GEOMETRY), steps=40)
+    losses = [0.2, 1.0, 0.6, 0.3, 0.25, 0.3, 0.22, 0.9, 0.25, 0.24, 3.1, 0.2, 0.21]
+    scripted = iter(losses)
+    state = FitState.fresh(schedule, "off")
+    state.history.append({"stage": StageKind.ALIGN.value, "step": 100, "loss": 0.001})   # another stage's: not compared
+    run = stage_run.StageRun(problem, geometry, state, torch.Generator().manual_seed(0))
+    run.energy = lambda batch, backward=True: (next(scripted), {})
+    rates = [group["lr"] for group in run.optimiser.param_groups]
+    events = [run.step().event for _ in losses]
+    assert [event is not None for event in events] == [loss == 3.1 for loss in losses]
+    assert "loss rose to 3.1 from 0.275" in events[losses.index(3.1)]
+    assert [group["lr"] for group in run.optimiser.param_groups] == [rate / 2 for rate in rates]
+
+
 def test_a_checkpoint_with_a_setting_this_version_does_not_know_is_one_line(tiny_clip, tmp_path):
     """A fit written by a newer harp (a setting this one lacks) is refused in one FitError line
     naming the setting, not a TypeError from deep inside."""

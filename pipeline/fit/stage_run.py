@@ -1,5 +1,6 @@
 """One stage of a fit under way: its Adam optimiser, the batches it draws, and the step with
-its safeguards (lazy per-frame updates, rollback on a non-finite or diverging loss).
+its safeguards (lazy per-frame updates, rollback on a non-finite or diverging loss: a full
+batch's loss against its best, a batch's against the median of the stage's recent batches).
 
 Each step records itself in the FitState (step count, history, events), so a stage can be
 stopped and resumed between any two steps.
@@ -9,6 +10,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+import statistics
 
 import torch
 
@@ -21,6 +23,14 @@ from .schedule import StageSpec
 ROLLBACK_EVERY = 20       # steps between the snapshots a rollback returns to
 ALIGN_CHUNK_FRAMES = 32   # frames of the unsubdivided mesh rendered at once in a full batch
 DIVERGENCE_FACTOR = 1.5   # a full-batch loss this much above the best so far counts as divergence
+# a batch loss this much above the median of the stage's last BATCH_DIVERGENCE_WINDOW batch losses counts as
+# divergence (batches differ, so no single best compares). In 103 finished fits (the demo, phone-like, MediaPipe,
+# 150-frame and stability clips, every preset) the most was 6.2x, at a stage's second step (Adam's first step
+# moves every parameter by its whole rate) on a 3-frame clip, else 4.4x; the stability sweep's pose rate x10
+# went to 87x at its geometry stage's second step and ended at 10 mm, its displacement rate x10 to 13x
+# (docs/study.md)
+BATCH_DIVERGENCE_FACTOR = 10.0
+BATCH_DIVERGENCE_WINDOW = 25
 PLATEAU_WINDOW = 25       # steps whose mean loss settings.plateau_tolerance compares with the window before
 PLATEAU_FLOOR = 0.125     # the plateaus halve a stage's rates down to this share at most
 
@@ -171,14 +181,15 @@ class StageRun:
             self._lazy_step(batch)
         if self.snapshot_unmeasured and math.isfinite(loss):    # this step's loss is the snapshot's
             self.last_good_loss, self.snapshot_unmeasured = loss, False
-        diverged = self.stage.full_batch and loss > DIVERGENCE_FACTOR * self.best_loss  # full batches compare
+        reference = self._divergence_reference()
+        diverged = math.isfinite(loss) and reference is not None and loss > reference[0]
         self.best_loss = min(self.best_loss, loss) if math.isfinite(loss) else self.best_loss
         self.state.step += 1
         if not math.isfinite(loss) or not self._finite() or diverged:
             self._restore(self.last_good)
             # the best since the snapshot is gone with what came after it: compared with it, the snapshot's own
             # loss would count as divergence at every step (a 3-frame clip rolled back 87 times in a row)
-            problem = f"loss rose to {loss:.4g} from {self.best_loss:.4g}" if diverged else "non-finite loss"
+            problem = f"loss rose to {loss:.4g} from {reference[1]:.4g}" if diverged else "non-finite loss"
             self.best_loss = self.last_good_loss
             for group in self.optimiser.param_groups:
                 group["base_lr"] *= 0.5
@@ -190,6 +201,19 @@ class StageRun:
             self.last_good, self.snapshot_unmeasured = self._snapshot(), True
         self.state.history.append({"stage": self.stage.name, "step": self.state.step, "loss": loss, **terms})
         return StepResult(loss, terms)
+
+    def _divergence_reference(self):
+        """(the loss above which this step counts as divergence, what it was compared with), or None
+        before there is anything to compare with: in a full-batch stage DIVERGENCE_FACTOR times its best
+        loss; in a batch stage BATCH_DIVERGENCE_FACTOR times the median of its last batch losses."""
+        if self.stage.full_batch:
+            return (DIVERGENCE_FACTOR * self.best_loss, self.best_loss) if math.isfinite(self.best_loss) else None
+        recent = [entry["loss"] for entry in self.state.history[-BATCH_DIVERGENCE_WINDOW:]
+                  if entry["stage"] == self.stage.name]
+        if not recent:
+            return None
+        median = statistics.median(recent)
+        return BATCH_DIVERGENCE_FACTOR * median, median
 
     def _set_learning_rates(self):
         """Each group's rate: its base rate (halved by each rollback) times, in a stage that
