@@ -369,7 +369,8 @@ def test_plateau_factor_halves_after_each_window_that_stopped_falling():
 def test_the_stages_rates_decay_and_a_rollback_halves_them(tiny_clip, tmp_path, monkeypatch):
     """The alignment and geometry stages keep their rates; the joint and appearance stages, the
     last to move their parameters, take them from the settings' down the half cosine to
-    final_rate_fraction of them; a rolled-back step halves what follows."""
+    final_rate_fraction of them; a rolled-back step halves what follows, in the stages after it
+    too."""
     from pipeline.fit import energy
 
     used, original_step = [], stage_run.StageRun._lazy_step
@@ -410,3 +411,4 @@ def test_the_stages_rates_decay_and_a_rollback_halves_them(tiny_clip, tmp_path, 
         assert rates == pytest.approx([scale * rate * stage_run.learning_rate_factor(step / steps, final)
                                        for rate in joint_start])
     assert [step for step, _ in joint] == [0, 1, 3, 4, 5]
+    assert appearance[0][1] == pytest.approx([0.5 * defaults.lr_appearance])   # the joint stage's halving carried on

@@ -72,6 +72,9 @@ class FitState:
     restarted: dict | None = None       # lost_frames.restart_lost_frames' figures, once it has run (after the alignment)
     light_search: dict | None = None    # light_search.search_light's figures, once it has run (before the light moves)
     after_stages_seconds: dict = dataclasses.field(default_factory=dict)   # the work after the stages, by part
+    # {settings rate name ("lr_geometry", ...): factor}: the halvings of rollbacks so far, which the stages after the
+    # one that rolled back start from (a rate 10x too high otherwise diverged again at the next stage's first step)
+    rate_factors: dict = dataclasses.field(default_factory=dict)
 
     @classmethod
     def fresh(cls, schedule: Schedule, shadows="auto"):

@@ -66,21 +66,21 @@ class StepResult:
 def parameter_groups(problem: FitProblem, stage: StageSpec):
     """Adam parameter groups of a stage, frozen parameters left out (empty: nothing to fit).
     The alignment moves rotations and translations at their own rates and no displacements."""
-    s = problem.settings
     if stage.coarse:
-        groups = [(("global_orient", "pose"), s.lr_align_rotation), (("transl",), s.lr_align_translation),
-                  (("betas",), s.lr_betas)]
+        groups = [(("global_orient", "pose"), "lr_align_rotation"), (("transl",), "lr_align_translation"),
+                  (("betas",), "lr_betas")]
     elif stage.geometry:
-        groups = [(POSE, s.lr_geometry), (("betas",), s.lr_betas), (("displacement",), s.lr_displacement)]
+        groups = [(POSE, "lr_geometry"), (("betas",), "lr_betas"), (("displacement",), "lr_displacement")]
     else:
         groups = []
     if stage.appearance:
-        groups.append((APPEARANCE + ("exposure",), s.lr_appearance))
+        groups.append((APPEARANCE + ("exposure",), "lr_appearance"))
     result = []
-    for names, lr in groups:
+    for names, rate in groups:
         parameters = [getattr(problem.avatar, name) for name in names if name not in problem.frozen]
         if parameters:
-            result.append({"params": parameters, "lr": lr, "base_lr": lr})
+            lr = getattr(problem.settings, rate)
+            result.append({"params": parameters, "lr": lr, "base_lr": lr, "rate": rate})
     return result
 
 
@@ -116,6 +116,8 @@ class StageRun:
                  optimiser_state=None):
         self.problem, self.stage, self.state, self.generator = problem, stage, state, generator
         groups = parameter_groups(problem, stage)
+        for group in groups:    # rates that rollbacks of earlier stages halved stay halved (FitState.rate_factors)
+            group["lr"] = group["base_lr"] = group["base_lr"] * state.rate_factors.get(group["rate"], 1.0)
         self.optimiser = torch.optim.Adam(groups) if groups else None
         if self.optimiser is not None and optimiser_state is not None:
             self.optimiser.load_state_dict(optimiser_state)
@@ -194,6 +196,8 @@ class StageRun:
             for group in self.optimiser.param_groups:
                 group["base_lr"] *= 0.5
                 group["lr"] *= 0.5
+                if "rate" in group:     # and in the stages after this one (a resumed stage's older groups lack it)
+                    self.state.rate_factors[group["rate"]] = self.state.rate_factors.get(group["rate"], 1.0) * 0.5
             event = f"{problem} at {self.stage.name} step {self.state.step - 1}: rolled back, learning rates halved"
             self.state.events.append(event)
             return StepResult(loss, terms, event)
