@@ -8,8 +8,8 @@ own, but at `--resolution`; one more stage of `--kind` runs `--steps` Adam steps
 parameters on it (a stage of the fit's own kind, energy and rates: stage_run.StageRun); then the
 albedo is solved again and the unseen texels filled (as after the fit's stages, from the frames at
 `--solve-resolution`, by default the fit's own working size), and the avatar is scored on all its
-frames at 448 px as benchmarks/score_fits.py scores fits (L1, PSNR and silhouette IoU in the mask,
-Procrustes joint error against gt.npz). `--steps 0` scores the fit with its albedo solved again: the
+frames at 448 px as benchmarks/score_fits.py scores fits (its avatar_scores: L1, PSNR and
+silhouette IoU in the mask, Procrustes joint error against gt.npz). `--steps 0` scores the fit with its albedo solved again: the
 reference the other rows compare with. One JSON line.
 
 docs/performance.md ("What `preview` lacks against `full`") asks it which steps `preview`'s poses
@@ -37,12 +37,11 @@ from pipeline.evaluate.finished_fit import load_finished_fit  # noqa: E402
 from pipeline.evaluate.poses import PoseScorer  # noqa: E402
 from pipeline.fit.albedo_solve import decided_texels, solve_avatar_albedo  # noqa: E402
 from pipeline.fit.checkpoint import FitState  # noqa: E402
-from pipeline.fit.clip_data import load_clip  # noqa: E402
-from pipeline.fit.outputs import image_scores, render_all  # noqa: E402
-from pipeline.fit.problem import _silhouette_weight, build_problem  # noqa: E402
+from pipeline.fit.problem import build_problem  # noqa: E402
 from pipeline.fit.schedule import Schedule, StageKind, StageSpec  # noqa: E402
 from pipeline.fit.stage_run import StageRun  # noqa: E402
 from pipeline.fit.texture_fill import fill_avatar_albedo  # noqa: E402
+from score_fits import avatar_scores  # noqa: E402   (a sibling script: benchmarks/ is on the path)
 
 SCORED_AT = 448
 
@@ -67,14 +66,7 @@ def polish(fit, sequence, kind: StageKind, resolution, steps, batch, solve_resol
         solve_avatar_albedo(seen, shadows)
         fill_avatar_albedo(problem.avatar, decided_texels(seen))
     solve_seconds = time.perf_counter() - started - stage_seconds
-    avatar = problem.avatar
-    with torch.no_grad():
-        clip = load_clip(sequence, SCORED_AT, frames, device="cpu")
-        _, keypoints = avatar.posed(torch.arange(len(frames)))
-        weight, _ = _silhouette_weight(clip, avatar, keypoints)
-        rgb, alpha = render_all(avatar, clip, shadows)
-        images = image_scores(rgb, alpha, clip, weight)
-    errors = PoseScorer(sequence).avatar_errors(avatar, frames)
+    images, errors = avatar_scores(problem.avatar, frames, sequence, PoseScorer(sequence), SCORED_AT, shadows)
     return {"fit": str(fit), "kind": kind.value, "resolution": resolution, "steps": steps, "batch": batch,
             "stage_seconds": round(stage_seconds, 1), "solve_seconds": round(solve_seconds, 1),
             f"l1_at_{SCORED_AT}": round(images["l1_mean"], 4), f"psnr_at_{SCORED_AT}": round(images["psnr_mean"], 2),

@@ -50,6 +50,17 @@ def on_frames(avatar, fitted_frames, frames, sequence):
 
 
 @torch.no_grad()
+def avatar_scores(avatar, frames, sequence, scorer, resolution, shadows):
+    """(image_scores of the avatar rendered at `resolution` on its sequence `frames`, inside the masks,
+    forearm cuts excluded; its pose errors against gt.npz (PoseScorer.avatar_errors))."""
+    clip = load_clip(sequence, resolution, frames, device="cpu")
+    _, keypoints = avatar.posed(torch.arange(len(frames)))
+    weight, _ = _silhouette_weight(clip, avatar, keypoints)
+    rgb, alpha = render_all(avatar, clip, shadows)
+    return image_scores(rgb, alpha, clip, weight), scorer.avatar_errors(avatar, frames)
+
+
+@torch.no_grad()
 def score(fit, sequence, scorer, resolution, frames=None):
     avatar, report = fitted_avatar(fit, sequence, device="cpu")
     fitted_frames = report["frames"]
@@ -59,12 +70,7 @@ def score(fit, sequence, scorer, resolution, frames=None):
             raise SystemExit(f"{fit} did not fit frames {missing[:5]}...: cannot score it on them")
         avatar = on_frames(avatar, fitted_frames, frames, sequence)
     frames = list(frames if frames is not None else fitted_frames)
-    clip = load_clip(sequence, resolution, frames, device="cpu")
-    _, keypoints = avatar.posed(torch.arange(len(frames)))
-    weight, _ = _silhouette_weight(clip, avatar, keypoints)
-    rgb, alpha = render_all(avatar, clip, report["shadows"]["on"])
-    images = image_scores(rgb, alpha, clip, weight)
-    errors = scorer.avatar_errors(avatar, frames)
+    images, errors = avatar_scores(avatar, frames, sequence, scorer, resolution, report["shadows"]["on"])
     return {"fit": str(fit), "preset": report.get("preset"), "frames": len(frames),
             "fit_seconds": round(report["total_seconds"], 1), "l1_own": round(report["metrics"]["l1_mean"], 4),
             "psnr_own": round(report["metrics"]["psnr_mean"], 2), f"l1_at_{resolution}": round(images["l1_mean"], 4),
