@@ -332,10 +332,11 @@ def instrumented(problem):
     import torch
 
     from pipeline.fit import avatar, energy, losses, stage_run
+    from pipeline.fit.surface_regularisers import SurfaceRegularisers
     from pipeline.render import fused, renderer
 
-    terms = [(losses, f"{term}_loss", _ranged(f"loss: {term}", getattr(losses, f"{term}_loss")))
-             for term in LOSS_TERMS if hasattr(losses, f"{term}_loss")]
+    terms = [(owner, f"{term}_loss", _ranged(f"loss: {term}", getattr(owner, f"{term}_loss")))
+             for owner in (losses, SurfaceRegularisers) for term in LOSS_TERMS if hasattr(owner, f"{term}_loss")]
     if problem.perceptual is not None:
         terms.append((problem, "perceptual", _ranged("loss: perceptual", problem.perceptual)))
     patches = terms + [

@@ -7,6 +7,7 @@ import torch
 
 from pipeline.fit import losses
 from pipeline.fit.problem import FitProblem
+from pipeline.fit.surface_regularisers import SurfaceRegularisers
 from pipeline.render.antialias import edge_topology
 from scipy.spatial.transform import Rotation
 
@@ -24,23 +25,32 @@ def grid_mesh(n=6, z=None):
     return torch.tensor(vertices)[None], torch.tensor(faces)
 
 
+def surface_of(faces, vertex_count):
+    """SurfaceRegularisers of a mesh, in float64."""
+    topology = edge_topology(faces)
+    return SurfaceRegularisers(faces, topology.edges, topology.faces[topology.faces[:, 1] >= 0], vertex_count,
+                               dtype=torch.float64)
+
+
 def test_laplacian_vanishes_on_flat_interior_and_sees_a_bump():
     vertices, faces = grid_mesh()
-    edges = edge_topology(faces).edges
-    lap = losses.uniform_laplacian(vertices, edges)[0].numpy()
+    surface = surface_of(faces, 36)
+    lap = surface.uniform_laplacian(vertices)[0].numpy()
     interior = [j * 6 + i for j in range(1, 5) for i in range(1, 5)]
     assert np.abs(lap[interior]).max() < 1e-15
     bumped = vertices.clone()
     bumped[0, 14, 2] = 0.005        # an interior vertex raised by 5 mm
-    lap = losses.uniform_laplacian(bumped, edges)[0]
+    lap = surface.uniform_laplacian(bumped)[0]
     assert lap[14, 2].item() == pytest.approx(-0.005)   # its neighbours are all flat
+    assert lap[13, 2].item() == pytest.approx(0.005 / 6)   # a neighbour of it (six neighbours each)
 
 
 def test_normal_consistency_of_a_fold():
     vertices = torch.tensor([[[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]]], dtype=torch.float64)
     faces = torch.tensor([[0, 1, 3], [0, 3, 2]])
-    pairs = torch.tensor([[0, 1]])
-    assert losses.normal_consistency_loss(vertices, faces, pairs).item() == pytest.approx(0.0, abs=1e-15)
+    surface = surface_of(faces, 4)
+    assert torch.equal(surface.face_pairs.sort(1).values, torch.tensor([[0, 1]]))
+    assert surface.normal_consistency_loss(vertices).item() == pytest.approx(0.0, abs=1e-15)
     folded = vertices.clone()
     folded[0, 2, 2] = 1.0             # lift one corner: the second face tilts by 45 degrees about the diagonal
     n1 = np.array([0, 0, 1.0])
@@ -48,17 +58,53 @@ def test_normal_consistency_of_a_fold():
     n2 = np.cross(v3 - v0, v2 - v0)
     n2 /= np.linalg.norm(n2)
     expected = 1 - n1 @ n2
-    assert losses.normal_consistency_loss(folded, faces, pairs).item() == pytest.approx(expected)
+    assert surface.normal_consistency_loss(folded).item() == pytest.approx(expected)
 
 
 def test_edge_length_term_is_blind_to_rigid_motion():
     vertices, faces = grid_mesh()
-    edges = edge_topology(faces).edges
+    surface = surface_of(faces, 36)
+    edges = surface.edges
+    reference = surface.edge_lengths(vertices)
     moved = torch.tensor(Rotation.from_rotvec([0.3, -0.8, 0.2]).apply(vertices[0].numpy()) + [0.1, 0.2, -0.3])[None]
-    assert losses.edge_length_loss(moved, vertices, edges).item() < 1e-30
+    assert surface.edge_length_loss(moved, reference).item() < 1e-30
     stretched = vertices * 1.1
     lengths = (vertices[0, edges[:, 0]] - vertices[0, edges[:, 1]]).norm(dim=-1)
-    assert losses.edge_length_loss(stretched, vertices, edges).item() == pytest.approx((0.1 * lengths).square().mean().item())
+    assert surface.edge_length_loss(stretched, reference).item() == pytest.approx((0.1 * lengths).square().mean().item())
+
+
+def test_the_surface_terms_over_a_batch_are_each_meshs_own_terms_averaged():
+    """The batched sparse terms against a plain computation, one mesh at a time, by loops over the
+    faces, edges and neighbours: values and gradients of three different bumpy meshes."""
+    generator = torch.Generator().manual_seed(3)
+    flat, faces = grid_mesh()
+    batch = flat.repeat(3, 1, 1) + 0.002 * torch.randn(3, 36, 3, generator=generator, dtype=torch.float64)
+    reference = flat.repeat(3, 1, 1) + 0.002 * torch.randn(3, 36, 3, generator=generator, dtype=torch.float64)
+    surface = surface_of(faces, 36)
+    edges = [tuple(edge) for edge in surface.edges.tolist()]
+    neighbours = {v: [b if a == v else a for a, b in edges if v in (a, b)] for v in range(36)}
+    pairs = surface.face_pairs.tolist()
+
+    def plain(mesh, reference_mesh):
+        laplacian = torch.stack([(mesh[neighbours[v]].mean(0) - mesh[v]).norm() for v in range(36)]).mean()
+        normals = [torch.cross(mesh[b] - mesh[a], mesh[c] - mesh[a], dim=0) for a, b, c in faces.tolist()]
+        normals = [n / n.norm() for n in normals]
+        consistency = torch.stack([1 - normals[f] @ normals[g] for f, g in pairs]).mean()
+        stretch = torch.stack([((mesh[a] - mesh[b]).norm() - (reference_mesh[a] - reference_mesh[b]).norm()) ** 2
+                               for a, b in edges]).mean()
+        return laplacian, consistency, stretch
+
+    ours_input = batch.clone().requires_grad_()
+    ours = (surface.laplacian_loss(ours_input), surface.normal_consistency_loss(ours_input),
+            surface.edge_length_loss(ours_input, surface.edge_lengths(reference)))
+    plain_input = batch.clone().requires_grad_()
+    theirs = [torch.stack(values).mean() for values in zip(*(plain(plain_input[i], reference[i]) for i in range(3)))]
+    for mine, other in zip(ours, theirs):
+        assert mine.item() == pytest.approx(other.item(), rel=1e-12)
+    assert ours[1].item() > 1e-4 and ours[2].item() > 1e-8        # the meshes are bumpy, the terms not zero
+    sum(weight * value for weight, value in zip((1.0, 10.0, 1e4), ours)).backward()
+    sum(weight * value for weight, value in zip((1.0, 10.0, 1e4), theirs)).backward()
+    assert torch.allclose(ours_input.grad, plain_input.grad, rtol=1e-10, atol=1e-14)
 
 
 def test_keypoint_anchor_in_units_of_ten_centimetres():

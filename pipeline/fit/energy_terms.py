@@ -137,23 +137,23 @@ def _displacement(batch):
 
 @_term("laplacian", 4.0, _SURFACE)
 def _laplacian(batch):
-    return losses.laplacian_loss(batch.vertices, batch.problem.edges)
+    return batch.problem.surface.laplacian_loss(batch.vertices)
 
 
 # the displacement field's own roughness: smooth reposed fingers (docs/fidelity.md)
 @_term("displacement_smoothness", 1.0, _SURFACE)
 def _displacement_smoothness(batch):
-    return losses.displacement_smoothness_loss(batch.displacement_field, batch.problem.edges)
+    return losses.displacement_smoothness_loss(batch.displacement_field, batch.problem.surface.edges)
 
 
 @_term("normal_consistency", 0.1, _SURFACE)
 def _normal_consistency(batch):
-    return losses.normal_consistency_loss(batch.vertices, batch.problem.avatar.mesh.faces, batch.problem.face_pairs)
+    return batch.problem.surface.normal_consistency_loss(batch.vertices)
 
 
 @_term("edge_length", 0.2, _SURFACE)
 def _edge_length(batch):
-    return losses.edge_length_loss(batch.vertices, batch.problem.reference_vertices[batch.frames], batch.problem.edges)
+    return batch.problem.surface.edge_length_loss(batch.vertices, batch.problem.reference_edge_lengths[batch.frames])
 
 
 def _forearm_targets(problem):

@@ -1,7 +1,7 @@
 """The fit's energy terms (appendix C.3, Table C.1), as plain functions of tensors.
 
-Geometry: silhouette, keypoint anchor, displacement size, Laplacian smoothness, normal
-consistency, edge-length (ARAP-style) preservation. Appearance: photometric L1 in the eroded
+Geometry: silhouette, keypoint anchor, displacement size (the surface's Laplacian, normal
+consistency and edge-length terms are in surface_regularisers.py). Appearance: photometric L1 in the eroded
 mask, and the UV-space regularisers of the albedo texture and the normal map. The perceptual
 term lives in perceptual.py. Shapes: B frames, V vertices, F faces, H x W images.
 """
@@ -40,42 +40,6 @@ def displacement_smoothness_loss(displacements, edges, unit=1e-3):
     units of `unit` (1 mm): the roughness of the displacement field itself, blind to the
     template's own curvature (which a Laplacian of the positions also penalises)."""
     return ((displacements.index_select(0, edges[:, 0]) - displacements.index_select(0, edges[:, 1])) / unit).square().mean()
-
-
-def uniform_laplacian(vertices, edges):
-    """Uniform Laplacian (mean of neighbours minus the vertex) of (B, V, 3) vertices for
-    undirected edges (E, 2)."""
-    both = torch.cat([edges, edges.flip(1)])
-    count = torch.zeros(vertices.shape[1], dtype=vertices.dtype, device=vertices.device)
-    count = count.index_add(0, both[:, 0], torch.ones(len(both), dtype=vertices.dtype, device=vertices.device))
-    summed = torch.zeros_like(vertices).index_add(1, both[:, 0], vertices.index_select(1, both[:, 1]))
-    return summed / count.clamp(min=1)[None, :, None] - vertices
-
-
-def laplacian_loss(vertices, edges):
-    """Mean length of the uniform Laplacian: zero on a flat regular grid's interior."""
-    return uniform_laplacian(vertices, edges).norm(dim=-1).mean()
-
-
-def face_normals(vertices, faces):
-    v0, v1, v2 = (vertices.index_select(1, faces[:, k]) for k in range(3))
-    return F.normalize(torch.cross(v1 - v0, v2 - v0, dim=-1), dim=-1, eps=1e-12)
-
-
-def normal_consistency_loss(vertices, faces, face_pairs):
-    """Mean of 1 - cos(angle) between the normals of faces that share an edge; face_pairs
-    (P, 2) lists those neighbours (edges on an open boundary excluded)."""
-    normals = face_normals(vertices, faces)
-    return (1 - (normals.index_select(1, face_pairs[:, 0]) * normals.index_select(1, face_pairs[:, 1])).sum(-1)).mean()
-
-
-def edge_length_loss(vertices, reference_vertices, edges):
-    """Mean squared change of edge lengths (metres^2) against a reference mesh: zero under
-    rigid motion, the as-rigid-as-possible term of the reference implementation."""
-    length = (vertices.index_select(1, edges[:, 0]) - vertices.index_select(1, edges[:, 1])).norm(dim=-1)
-    reference = (reference_vertices.index_select(1, edges[:, 0])
-                 - reference_vertices.index_select(1, edges[:, 1])).norm(dim=-1)
-    return (length - reference).square().mean()
 
 
 def direction_loss(vectors, targets, found):

@@ -29,6 +29,7 @@ from .losses import PHOTOMETRIC_EROSION, eroded_mask
 from .mask_cuts import cut_regions
 from .perceptual import perceptual_term
 from .settings import FitSettings
+from .surface_regularisers import SurfaceRegularisers
 
 
 EXPOSURE_VARIATION = 0.03    # relative spread of the background's brightness that switches exposure gains on
@@ -51,13 +52,12 @@ class FitProblem:
     initial: InitialEstimate
     clip: ClipData                      # frames, masks and K at the working resolution
     avatar: Avatar
-    edges: torch.Tensor                 # (E, 2) undirected edges of the subdivided mesh
-    face_pairs: torch.Tensor            # (P, 2) faces sharing an edge
+    surface: SurfaceRegularisers        # the subdivided mesh's Laplacian, normal-consistency and edge-length terms
     uv_mask: torch.Tensor               # (T, T) texels inside the UV charts
     perceptual: Callable | None         # the perceptual term, None when its weight is 0
     perceptual_name: str
     anchor_keypoints: torch.Tensor      # (F, 21, 3) keypoints at the start: the anchor term's targets
-    reference_vertices: torch.Tensor    # (F, V, 3) surface at the start: the edge-length term's reference
+    reference_edge_lengths: torch.Tensor    # (F, E) the surface's edges at the start: the edge-length term's reference
     frozen: tuple = ()                  # avatar parameters that never move
     silhouette_weight: torch.Tensor | None = None   # (F, H, W, 1) 0 where masks say nothing (None: 1)
     mask_cut_frames: int = 0            # frames whose mask is cut across the forearm (mask_cuts.py)
@@ -166,6 +166,8 @@ def build_problem(sequence, settings: FitSettings, frames, device=None, shared=N
         reference_vertices, keypoints = avatar.posed(torch.arange(len(clip.frames), device=device))
     silhouette_weight, cut_frames = _silhouette_weight(clip, avatar, keypoints)
     topology = avatar.mesh.edges()
+    surface = SurfaceRegularisers(avatar.mesh.faces, topology.edges, topology.faces[topology.faces[:, 1] >= 0],
+                                  reference_vertices.shape[1], dtype=reference_vertices.dtype, device=device)
     data = avatar.model.data
     uv_mask = torch.as_tensor(atlas_mask(data.uvs, data.faces_uv, settings.texture_size),
                               device=device, dtype=clip.images.dtype)
@@ -174,9 +176,10 @@ def build_problem(sequence, settings: FitSettings, frames, device=None, shared=N
     else:
         perceptual_name, perceptual = perceptual_term(settings.perceptual_weights, device)
     problem = FitProblem(sequence=sequence, settings=settings, initial=initial, clip=clip, avatar=avatar,
-                         edges=topology.edges, face_pairs=topology.faces[topology.faces[:, 1] >= 0], uv_mask=uv_mask,
+                         surface=surface, uv_mask=uv_mask,
                          perceptual=perceptual, perceptual_name=perceptual_name,
-                         anchor_keypoints=keypoints[:, :21].detach(), reference_vertices=reference_vertices.detach(),
+                         anchor_keypoints=keypoints[:, :21].detach(),
+                         reference_edge_lengths=surface.edge_lengths(reference_vertices),
                          frozen=frozen, silhouette_weight=silhouette_weight, mask_cut_frames=cut_frames,
                          exposure_note=exposure_note, exposure_measured=exposure_measured)
     problem.term_data = prepare_terms(problem)
