@@ -69,6 +69,35 @@ def test_fused_and_reference_paths_agree(hand_scene, light_per_frame):
         assert grad.abs().max() > 0, name
         assert torch.allclose(fused_grads[name], grad, atol=1e-5 * grad.abs().max(), rtol=0), name
 
+def test_fused_normals_and_tangents_are_the_references_at_every_vertex(hand_scene):
+    """The sparse products give every vertex's normal, every UV vertex's tangent and every face's
+    handedness as shading.py's gathers and scatters do, with the same gradients; UVs changed in
+    place make new tangents (the cached matrix is rebuilt)."""
+    points, mesh, *_ = hand_scene
+    generator = torch.Generator().manual_seed(7)
+    weights = torch.rand(2, len(points[0]), 3, generator=generator, dtype=torch.float64), \
+        torch.rand(2, len(mesh.uvs), 3, generator=generator, dtype=torch.float64)
+    results = []
+    for ops in (shading, fused):
+        leaf = points.clone().requires_grad_(True)
+        normals = ops.vertex_normals(leaf, mesh.faces)
+        tangents, handedness = ops.uv_tangents(leaf, mesh.faces, mesh.uvs, mesh.faces_uv)
+        ((normals * weights[0]).sum() + (tangents * weights[1]).sum()).backward()
+        results.append((normals.detach(), tangents.detach(), handedness, leaf.grad))
+    (normals, tangents, handedness, grad), (fused_normals, fused_tangents, fused_handedness, fused_grad) = results
+    assert (handedness < 0).any() and (handedness > 0).any()         # the atlas has mirrored charts
+    assert torch.equal(fused_handedness, handedness)
+    assert torch.allclose(fused_normals, normals, atol=1e-12, rtol=0)
+    assert torch.allclose(fused_tangents, tangents, atol=1e-12 * tangents.abs().max(), rtol=0)
+    assert torch.allclose(fused_grad, grad, atol=1e-10 * grad.abs().max(), rtol=0)
+    uvs = mesh.uvs.clone()
+    expected = shading.uv_tangents(points, mesh.faces, uvs * torch.tensor([2.0, 1.0], dtype=uvs.dtype), mesh.faces_uv)[0]
+    fused.uv_tangents(points, mesh.faces, uvs, mesh.faces_uv)
+    uvs[:, 0] *= 2.0                                                   # u stretched: tangents halve
+    assert torch.allclose(fused.uv_tangents(points, mesh.faces, uvs, mesh.faces_uv)[0], expected,
+                          atol=1e-12 * expected.abs().max(), rtol=0)
+
+
 
 @pytest.mark.parametrize("size", [SIZE, 131])
 def test_fused_rasteriser_is_the_reference_bit_for_bit(hand_scene, size):

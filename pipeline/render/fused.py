@@ -21,11 +21,13 @@ face wins a pixel, at what depth) is identical; elsewhere sums may round in anot
 from __future__ import annotations
 
 import torch
+from torch.utils.weak import WeakIdKeyDictionary
 
 from .antialias import EdgeTopology, silhouette_crossings
 from .interpolate import Fragments
 from .rasterize import _FACE_BITS, NEAR, Rasterization, candidate_test, face_boxes, face_planes, project
-from .shading import face_tangents
+from .shading import tangent_weights
+from .sparse_operator import SparseOperator, vertex_major
 from .shadow_map import BIAS, EMPTY_DEPTH, SHARPNESS, light_view
 
 
@@ -269,28 +271,72 @@ class _LitColour(torch.autograd.Function):
 
 
 def vertex_normals(points, faces):
-    """shading.vertex_normals with one scatter over the flattened frames."""
+    """shading.vertex_normals as sparse products over the frames laid out vertex-major: each
+    face's two edges (F, B * 3) from the positions (V, B * 3), and each vertex's sum of its faces'
+    normals from the faces' (their backward passes are the transposed products, not scatters)."""
     batch, count = points.shape[:2]
-    corner = _corners_of_every_frame(faces, batch, count)                      # (3, B * F)
-    flat = points.reshape(-1, 3)
-    v0, v1, v2 = (flat.index_select(0, corner[k]) for k in range(3))
-    face_normals = torch.cross(v1 - v0, v2 - v0, dim=-1)
-    normals = torch.zeros_like(flat).index_add(0, corner.reshape(-1), face_normals.repeat(3, 1))
-    return torch.nn.functional.normalize(normals.view(batch, count, 3), dim=-1, eps=1e-12)
+    operators = _mesh_operators(faces, count, points)
+    rows = vertex_major(points)
+    e1, e2 = (edges(rows).view(-1, batch, 3) for edges in operators.face_edges)
+    face_normals = torch.cross(e1, e2, dim=-1).view(len(faces), -1)
+    normals = operators.vertex_faces(face_normals).view(count, batch, 3).transpose(0, 1)
+    return torch.nn.functional.normalize(normals, dim=-1, eps=1e-12)
 
 
 def uv_tangents(points, faces, uvs, faces_uv):
-    """shading.uv_tangents with flat gathers and one scatter over the flattened frames."""
+    """shading.uv_tangents as one sparse product: with the UVs fixed, each face's tangent is a
+    fixed combination of its edges (shading.tangent_weights) and each UV vertex sums its faces',
+    so the (U, B * 3) tangents are one (U, V) matrix times the positions laid out vertex-major."""
     batch, count = points.shape[:2]
-    corner = _corners_of_every_frame(faces, batch, count)
-    flat = points.reshape(-1, 3)
-    p0, p1, p2 = (flat.index_select(0, corner[k]).view(batch, -1, 3) for k in range(3))
-    t0, t1, t2 = (uvs.index_select(0, faces_uv[:, k]) for k in range(3))
-    face_tangent, handedness = face_tangents(p0, p1, p2, t0, t1, t2)
-    uv_corner = _corners_of_every_frame(faces_uv, batch, len(uvs)).reshape(-1)
-    tangents = torch.zeros(batch * len(uvs), 3, dtype=points.dtype, device=points.device)
-    tangents = tangents.index_add(0, uv_corner, face_tangent.reshape(-1, 3).repeat(3, 1))
-    return tangents.view(batch, len(uvs), 3), handedness
+    tangents_of, handedness = _mesh_operators(faces, count, points).tangents(uvs, faces_uv)
+    tangents = tangents_of(vertex_major(points)).view(len(uvs), batch, 3).transpose(0, 1)
+    return tangents, handedness
+
+
+class _MeshOperators:
+    """The sparse operators of one triangle mesh's topology (faces (F, 3) over V vertices): each
+    face's edges p1 - p0 and p2 - p0, each vertex's sum over its faces, and the tangents' operator
+    of a UV layout (built on first use, again when the UVs change)."""
+
+    def __init__(self, faces, count, like):
+        rows = torch.arange(len(faces), device=faces.device)
+        ones = torch.ones(len(faces), dtype=torch.float64, device=faces.device)
+        # a copy: the faces tensor is the cache's weak key, which this must not keep alive
+        self.faces, self.count, self.kind = faces.clone(), count, dict(dtype=like.dtype, device=like.device)
+        self.face_edges = tuple(SparseOperator(torch.cat([rows, rows]), torch.cat([faces[:, k], faces[:, 0]]),
+                                               torch.cat([ones, -ones]), (len(faces), count), **self.kind)
+                                for k in (1, 2))
+        self.vertex_faces = SparseOperator(faces.t().reshape(-1), rows.repeat(3), ones.repeat(3),
+                                           (count, len(faces)), **self.kind)
+        self._tangents = None
+
+    def tangents(self, uvs, faces_uv):
+        """(SparseOperator (U, V), handedness (F,)): the UV vertices' tangents from the positions."""
+        key = (id(uvs), uvs._version, id(faces_uv), faces_uv._version)
+        if self._tangents is None or self._tangents[0] != key:
+            faces = self.faces
+            t0, t1, t2 = (uvs.index_select(0, faces_uv[:, k]).double() for k in range(3))
+            w1, w2, handedness = tangent_weights(t0, t1, t2)
+            # each corner of face f adds w1 (p1 - p0) + w2 (p2 - p0) to its UV vertex
+            columns = torch.cat([faces[:, 1], faces[:, 2], faces[:, 0]])
+            weights = torch.cat([w1, w2, -(w1 + w2)])
+            operator = SparseOperator(faces_uv.t().repeat_interleave(3, dim=0).reshape(-1), columns.repeat(3),
+                                      weights.repeat(3), (len(uvs), self.count), **self.kind)
+            self._tangents = (key, (operator, handedness.to(self.kind["dtype"])))
+        return self._tangents[1]
+
+
+_OPERATORS = WeakIdKeyDictionary()     # {faces tensor: {(V, dtype, device): _MeshOperators}}
+
+
+def _mesh_operators(faces, count, like) -> _MeshOperators:
+    """The operators of `faces` over `count` vertices in `like`'s dtype and device, made once per
+    faces tensor (a fit's meshes keep theirs) and dropped with it."""
+    per_faces = _OPERATORS.setdefault(faces, {})
+    key = (count, like.dtype, like.device)
+    if key not in per_faces:
+        per_faces[key] = _MeshOperators(faces, count, like)
+    return per_faces[key]
 
 
 def _corners_of_every_frame(faces, batch, count):

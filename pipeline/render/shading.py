@@ -38,12 +38,19 @@ def uv_tangents(points, faces, uvs, faces_uv):
 def face_tangents(p0, p1, p2, t0, t1, t2):
     """Per-face tangent (B, F, 3) from corner positions (B, F, 3) and UVs (F, 2), and the
     handedness (F,): +1, or -1 where the face is mirrored in UV space."""
-    e1, e2 = p1 - p0, p2 - p0
+    w1, w2, handedness = tangent_weights(t0, t1, t2)
+    return (p1 - p0) * w1[:, None] + (p2 - p0) * w2[:, None], handedness
+
+
+def tangent_weights(t0, t1, t2):
+    """(w1 (F,), w2 (F,), handedness (F,)) of faces whose corners have UVs t0, t1, t2 (F, 2): a
+    face's tangent (the direction of increasing u) is w1 e1 + w2 e2 for its edges e1 = p1 - p0 and
+    e2 = p2 - p0; the handedness is -1 where the face is mirrored in UV space, else +1."""
     d1, d2 = t1 - t0, t2 - t0
     det = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
-    handedness = torch.where(det < 0, -1.0, 1.0).to(p0.dtype)
+    handedness = torch.where(det < 0, -1.0, 1.0).to(t0.dtype)
     safe = torch.where(det.abs() > 1e-20, det, torch.full_like(det, 1e-20))
-    return (e1 * d2[:, 1, None] - e2 * d1[:, 1, None]) / safe[:, None], handedness
+    return d2[:, 1] / safe, -d1[:, 1] / safe, handedness
 
 
 def perturbed_normal(normal, tangent, handedness, normal_map_value):
