@@ -104,6 +104,30 @@ def test_gradients_match_finite_differences(model64, mode, case):
     assert torch.autograd.gradcheck(f, (pose, orient, transl, betas), eps=1e-6, atol=1e-6, rtol=1e-5)
 
 
+def test_gradients_of_given_rest_vertices_and_per_frame_shapes_match_finite_differences(model64, mode):
+    """The skinning's hand-written blend (lbs._Blend) in the fit's use: two frames of one rest
+    surface given as `rest_vertices`, and two frames of their own shapes."""
+    model = model64[mode]
+    generator = torch.Generator().manual_seed(4)
+    pose = (0.3 * torch.randn(2, 16, 3, generator=generator, dtype=torch.float64)).requires_grad_(True)
+    orient = torch.tensor([[0.2, -0.1, 0.3], [np.pi - 0.4, 0.2, 0.1]], dtype=torch.float64, requires_grad=True)
+    transl = torch.tensor([[0.01, 0.02, 0.5], [0.0, -0.03, 0.4]], dtype=torch.float64, requires_grad=True)
+    subset = torch.arange(0, model.data.num_vertices, 53)
+    rest = model.shaped(torch.zeros(model.num_betas, dtype=torch.float64))[0]
+    rest = (rest + 0.001 * torch.randn(rest.shape, generator=generator, dtype=torch.float64)).requires_grad_(True)
+
+    def given_rest(pose, orient, transl, rest):
+        return model(pose=pose, global_orient=orient, transl=transl, rest_vertices=rest).vertices[:, subset].reshape(-1)
+
+    assert torch.autograd.gradcheck(given_rest, (pose, orient, transl, rest), eps=1e-6, atol=1e-6, rtol=1e-5)
+    betas = torch.linspace(-1, 1, 2 * model.num_betas, dtype=torch.float64).reshape(2, -1).requires_grad_(True)
+
+    def per_frame(betas, pose):
+        return model(betas=betas, pose=pose, global_orient=orient.detach(), transl=transl.detach()).vertices[:, subset].reshape(-1)
+
+    assert torch.autograd.gradcheck(per_frame, (betas, pose), eps=1e-6, atol=1e-6, rtol=1e-5)
+
+
 def test_joint_limit_prior(model64):
     limits = model64["hand"].joint_limits
     inside = torch.zeros(2, 16, 3, dtype=torch.float64)

@@ -29,7 +29,7 @@ from ..formats.specular_lobe import LEVEL_MAX, ROUGHNESS_RANGE
 from ..handmodel.lbs import HandModel
 from ..render.occlusion import bounce_radiance, hand_focus, lost_light
 from ..render.renderer import Appearance, Light, RenderMesh
-from ..render.shading import vertex_normals
+from ..render.fused import vertex_normals
 
 SKIN_RGB = (232 / 255, 190 / 255, 172 / 255)
 INITIAL_AMBIENT = 0.6

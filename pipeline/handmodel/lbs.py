@@ -140,11 +140,35 @@ class HandModel(torch.nn.Module):
             vertices = rest_vertices.to(dtype)
         transforms = self.bone_transforms(joints, pose, global_orient, transl)
         blended = torch.einsum("vj,bjk->bvk", self.weights, transforms.reshape(batch, -1, 12)).reshape(batch, -1, 3, 4)
-        posed = (blended[..., :3] * vertices.expand(batch, -1, -1)[..., None, :]).sum(-1) + blended[..., 3]
+        posed = _Blend.apply(blended, vertices)
         posed_joints = _apply(transforms, joints.expand(batch, -1, -1))
         carriers = transforms[:, self.keypoint_joints]
         posed_keypoints = _apply(carriers, keypoints.expand(batch, -1, -1))
         return HandOutput(posed, posed_joints, posed_keypoints, transforms)
+
+
+class _Blend(torch.autograd.Function):
+    """(B, V, 3) rest points (V, 3) (or each frame's, (B, V, 3)) moved by each frame's blended affine
+    transform of each vertex (B, V, 3, 4): A v + t. Autograd's record of the broadcast product allocated several (B, V, 3, 4)
+    tensors per pass; this forward writes the result in three fused multiply-adds, the backward is
+    d/dA = g v^T, d/dt = g, d/dv = sum over frames of A^T g."""
+
+    @staticmethod
+    def forward(ctx, blended, vertices):
+        ctx.save_for_backward(blended, vertices)
+        x, y, z = (vertices[..., k, None] for k in range(3))
+        return torch.addcmul(torch.addcmul(torch.addcmul(blended[..., 3], blended[..., 0], x),
+                                           blended[..., 1], y), blended[..., 2], z)
+
+    @staticmethod
+    def backward(ctx, grad):
+        blended, vertices = ctx.saved_tensors
+        homogeneous = torch.cat([vertices, vertices.new_ones(*vertices.shape[:-1], 1)], -1)   # (..., V, 4)
+        grad_blended = grad[..., None] * homogeneous[..., None, :] if ctx.needs_input_grad[0] else None
+        grad_vertices = None
+        if ctx.needs_input_grad[1]:
+            grad_vertices = torch.einsum("bvi,bvij->" + ("vj" if vertices.dim() == 2 else "bvj"), grad, blended[..., :3])
+        return grad_blended, grad_vertices
 
 
 def _apply(transforms, points):
