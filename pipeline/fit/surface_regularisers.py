@@ -13,9 +13,9 @@ a time, which made these terms about a quarter of a shaded step at `preview`'s s
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 
 from ..render.sparse_operator import SparseOperator, vertex_major
+from ..render.vector_ops import cross3, normalized
 
 
 class SurfaceRegularisers:
@@ -67,6 +67,6 @@ class SurfaceRegularisers:
         """Mean of 1 - cos(angle) between the normals of faces that share an edge, over every mesh."""
         rows = vertices.transpose(0, 1).contiguous()                               # (V, B, 3)
         v0, v1, v2 = (rows.index_select(0, self.faces[:, k]) for k in range(3))
-        normals = F.normalize(torch.cross(v1 - v0, v2 - v0, dim=-1), dim=-1, eps=1e-12)
+        normals = normalized(cross3(v1 - v0, v2 - v0))
         return (1 - (normals.index_select(0, self.face_pairs[:, 0])
                      * normals.index_select(0, self.face_pairs[:, 1])).sum(-1)).mean()

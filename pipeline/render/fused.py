@@ -28,6 +28,7 @@ from .interpolate import Fragments
 from .rasterize import _FACE_BITS, NEAR, Rasterization, candidate_test, face_boxes, face_planes, project
 from .shading import tangent_weights
 from .sparse_operator import SparseOperator, vertex_major
+from .vector_ops import cross3, normalized
 from .shadow_map import BIAS, EMPTY_DEPTH, SHARPNESS, light_view
 
 
@@ -212,7 +213,7 @@ class _PerturbedNormal(torch.autograd.Function):
         n, normal_length = _unit(normal)
         along = _dot(tangent, n)
         t, tangent_length = _unit(tangent - along * n)
-        b = handedness[:, None] * torch.cross(n, t, dim=-1)
+        b = handedness[:, None] * cross3(n, t)
         out, out_length = _unit(value[:, :1] * t + value[:, 1:2] * b + value[:, 2:3] * n)
         ctx.save_for_backward(tangent, handedness, value, n, t, b, out, normal_length, tangent_length,
                               out_length, along)
@@ -224,8 +225,8 @@ class _PerturbedNormal(torch.autograd.Function):
         grad_s = (grad - out * _dot(out, grad)) / out_length
         grad_value = torch.cat([_dot(grad_s, t), _dot(grad_s, b), _dot(grad_s, n)], dim=-1)
         grad_b = handedness[:, None] * value[:, 1:2] * grad_s
-        grad_t = value[:, :1] * grad_s + torch.cross(grad_b, n, dim=-1)      # a . (n x t) = t . (a x n)
-        grad_n = value[:, 2:3] * grad_s + torch.cross(t, grad_b, dim=-1)     # ... = n . (t x a)
+        grad_t = value[:, :1] * grad_s + cross3(grad_b, n)      # a . (n x t) = t . (a x n)
+        grad_n = value[:, 2:3] * grad_s + cross3(t, grad_b)     # ... = n . (t x a)
         grad_u = (grad_t - t * _dot(t, grad_t)) / tangent_length
         grad_tangent = grad_u - n * _dot(n, grad_u)
         grad_n = grad_n - along * grad_u - _dot(n, grad_u) * tangent
@@ -278,9 +279,8 @@ def vertex_normals(points, faces):
     operators = _mesh_operators(faces, count, points)
     rows = vertex_major(points)
     e1, e2 = (edges(rows).view(-1, batch, 3) for edges in operators.face_edges)
-    face_normals = torch.cross(e1, e2, dim=-1).view(len(faces), -1)
-    normals = operators.vertex_faces(face_normals).view(count, batch, 3).transpose(0, 1)
-    return torch.nn.functional.normalize(normals, dim=-1, eps=1e-12)
+    face_normals = cross3(e1, e2).view(len(faces), -1)
+    return normalized(operators.vertex_faces(face_normals).view(count, batch, 3).transpose(0, 1))
 
 
 def uv_tangents(points, faces, uvs, faces_uv):

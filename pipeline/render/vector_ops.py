@@ -1,0 +1,40 @@
+"""Cross products and unit vectors over many 3-vectors (the last dimension), laid out for a CPU.
+
+torch.cross and F.normalize reduce over a last dimension of three one vector at a time and do not
+share the work between threads: on the fit's (F, B, 3) face normals (16k faces, 10 frames) torch's
+cross with its backward took 11 ms on two threads, the component form 4.6; F.normalize's backward
+is many small passes where the hand-written one below is three.
+"""
+from __future__ import annotations
+
+import torch
+
+
+def cross3(u, v):
+    """(..., 3) the cross products of (..., 3) u and v (broadcast), component by component."""
+    ux, uy, uz = u.unbind(-1)
+    vx, vy, vz = v.unbind(-1)
+    return torch.stack([uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx], -1)
+
+
+def normalized(vectors, eps=1e-12):
+    """(..., 3) the vectors divided by their lengths (at least `eps`), as F.normalize(dim=-1)."""
+    return _Normalized.apply(vectors, eps)
+
+
+class _Normalized(torch.autograd.Function):
+    # y = x / max(|x|, eps); backward (g - y (y . g)) / |x| where |x| > eps, else g / eps
+
+    @staticmethod
+    def forward(ctx, vectors, eps):
+        length = vectors.square().sum(-1, keepdim=True).sqrt()
+        clamped = length.clamp(min=eps)
+        unit = vectors / clamped
+        ctx.save_for_backward(unit, clamped, length > eps)
+        return unit
+
+    @staticmethod
+    def backward(ctx, grad):
+        unit, clamped, above = ctx.saved_tensors
+        along = (unit * grad).sum(-1, keepdim=True) * above
+        return (grad - unit * along) / clamped, None
