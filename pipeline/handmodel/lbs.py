@@ -148,10 +148,10 @@ class HandModel(torch.nn.Module):
 
 
 class _Blend(torch.autograd.Function):
-    """(B, V, 3) rest points (V, 3) (or each frame's, (B, V, 3)) moved by each frame's blended affine
-    transform of each vertex (B, V, 3, 4): A v + t. Autograd's record of the broadcast product allocated several (B, V, 3, 4)
-    tensors per pass; this forward writes the result in three fused multiply-adds, the backward is
-    d/dA = g v^T, d/dt = g, d/dv = sum over frames of A^T g."""
+    """(B, V, 3) rest points (V, 3) (or each frame's, (B, V, 3)) moved by each frame's blended
+    affine transform of each vertex (B, V, 3, 4): A v + t. Autograd's record of the broadcast
+    product allocated several (B, V, 3, 4) tensors per pass; this forward is three fused
+    multiply-adds, the backward d/dA = g v^T, d/dt = g, d/dv = the sum over frames of A^T g."""
 
     @staticmethod
     def forward(ctx, blended, vertices):

@@ -20,6 +20,8 @@ face wins a pixel, at what depth) is identical; elsewhere sums may round in anot
 """
 from __future__ import annotations
 
+import weakref
+
 import torch
 from torch.utils.weak import WeakIdKeyDictionary
 
@@ -312,8 +314,10 @@ class _MeshOperators:
 
     def tangents(self, uvs, faces_uv):
         """(SparseOperator (U, V), handedness (F,)): the UV vertices' tangents from the positions."""
-        key = (id(uvs), uvs._version, id(faces_uv), faces_uv._version)
-        if self._tangents is None or self._tangents[0] != key:
+        # the UV tensors known by weak references (an id may be taken by a new tensor) and their
+        # versions (a change in place makes new UVs)
+        cached, versions = self._tangents, (uvs._version, faces_uv._version)
+        if cached is None or cached[0]() is not uvs or cached[1]() is not faces_uv or cached[2] != versions:
             faces = self.faces
             t0, t1, t2 = (uvs.index_select(0, faces_uv[:, k]).double() for k in range(3))
             w1, w2, handedness = tangent_weights(t0, t1, t2)
@@ -322,8 +326,9 @@ class _MeshOperators:
             weights = torch.cat([w1, w2, -(w1 + w2)])
             operator = SparseOperator(faces_uv.t().repeat_interleave(3, dim=0).reshape(-1), columns.repeat(3),
                                       weights.repeat(3), (len(uvs), self.count), **self.kind)
-            self._tangents = (key, (operator, handedness.to(self.kind["dtype"])))
-        return self._tangents[1]
+            self._tangents = (weakref.ref(uvs), weakref.ref(faces_uv), versions,
+                              (operator, handedness.to(self.kind["dtype"])))
+        return self._tangents[3]
 
 
 _OPERATORS = WeakIdKeyDictionary()     # {faces tensor: {(V, dtype, device): _MeshOperators}}
@@ -337,12 +342,6 @@ def _mesh_operators(faces, count, like) -> _MeshOperators:
     if key not in per_faces:
         per_faces[key] = _MeshOperators(faces, count, like)
     return per_faces[key]
-
-
-def _corners_of_every_frame(faces, batch, count):
-    """(3, B * F): corner k of every face in every frame, as indices into (B * count) rows."""
-    frame_start = count * torch.arange(batch, device=faces.device)
-    return (faces.t().unsqueeze(1) + frame_start[None, :, None]).reshape(3, -1)
 
 
 def shadow_visibility(points, faces, surface_points, surface_frags: Fragments, light_position, resolution=256,

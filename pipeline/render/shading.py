@@ -39,7 +39,7 @@ def face_tangents(p0, p1, p2, t0, t1, t2):
     """Per-face tangent (B, F, 3) from corner positions (B, F, 3) and UVs (F, 2), and the
     handedness (F,): +1, or -1 where the face is mirrored in UV space."""
     w1, w2, handedness = tangent_weights(t0, t1, t2)
-    return (p1 - p0) * w1[:, None] + (p2 - p0) * w2[:, None], handedness
+    return (p1 - p0) * w1[:, None] + (p2 - p0) * w2[:, None], handedness.to(p0.dtype)
 
 
 def tangent_weights(t0, t1, t2):
