@@ -201,6 +201,27 @@ def test_the_solve_changes_only_the_texels_the_frames_show(problem):
         problem.avatar.environment.copy_(environment)
 
 
+def test_with_the_light_held_the_albedo_alone_is_solved(problem):
+    """solve_environment=False (the fit's finer pass): the frames' albedo comes back as well, and
+    the environment light is left bit for bit as it was, where the full solve moves it."""
+    problem, truth = problem
+    before = problem.avatar.albedo.detach().clone()
+    environment = problem.avatar.environment.detach().clone()
+    try:
+        figures = solve_avatar_albedo(problem, shadows=False, solve_environment=False)
+        assert torch.equal(problem.avatar.environment, environment) and "environment_strength" not in figures
+        albedo, read = problem.avatar.albedo.detach().numpy(), problem.uv_mask.numpy() > 0
+        changed = np.abs(albedo - before.numpy()).max(0) > 0
+        assert changed[read].mean() > 0.2
+        assert np.abs(albedo - truth).mean(0)[changed & read].mean() < 0.02
+        figures = solve_avatar_albedo(problem, shadows=False)
+        assert "environment_strength" in figures and not torch.equal(problem.avatar.environment, environment)
+    finally:
+        with torch.no_grad():
+            problem.avatar.albedo.copy_(before)
+            problem.avatar.environment.copy_(environment)
+
+
 def test_frames_that_show_no_usable_pixel_leave_the_albedo_as_it_is(problem):
     problem, _ = problem
     empty = dataclasses.replace(problem.clip, masks=torch.zeros_like(problem.clip.masks))

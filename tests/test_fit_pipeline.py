@@ -67,6 +67,32 @@ def test_fit_writes_a_complete_avatar(tiny_clip, tmp_path):
                     resolution=96)
 
 
+def test_a_finer_solve_reads_the_clips_own_frames_with_the_light_held(tiny_clip, tmp_path, monkeypatch):
+    """solve_resolution above the working size: the albedo is solved with the light from the working
+    frames, then again from the clip's own frames with the light held (the environment bit for bit);
+    a finished fit resumed with another solve_resolution is accepted and left as it was."""
+    calls = []
+    original = fitting.solve_avatar_albedo
+
+    def recording(problem, shadows, solve_environment=True):
+        before = problem.avatar.environment.detach().clone()
+        figures = original(problem, shadows, solve_environment)
+        held = torch.equal(before, problem.avatar.environment)
+        calls.append((tuple(problem.clip.images.shape[1:3]), solve_environment, held))
+        return figures
+
+    monkeypatch.setattr(fitting, "solve_avatar_albedo", recording)
+    options = dict(progress="none", max_steps=2, texture_size=64, batch_size=2, resolution=64, environment="on")
+    report = fitting.fit(tiny_clip, tmp_path / "finer", solve_resolution=96, **options)
+    assert calls[0] == ((64, 64), True, False) and calls[-1] == ((96, 96), False, True)
+    assert report["albedo_solve"][fitting.FINER_SOLVE]["solved_fraction"] > 0.1
+    assert report["albedo_solve"]["solved_fraction"] > 0.1
+    albedo = cv2.imread(str(tmp_path / "finer" / av.ALBEDO_FILE))
+    calls.clear()
+    fitting.fit(tiny_clip, tmp_path / "finer", resume=True, solve_resolution=0, **options)
+    assert not calls and np.array_equal(cv2.imread(str(tmp_path / "finer" / av.ALBEDO_FILE)), albedo)
+
+
 def test_the_texture_is_no_finer_than_the_clips_pixels(tiny_clip):
     """A preset's texture shrinks to what the clip's working images can fill (the 96 px clip:
     128 texels, not `paper`'s 512); a texture size the user gives is kept."""

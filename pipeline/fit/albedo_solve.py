@@ -140,28 +140,30 @@ def solved_albedo(problem, shadows, batch_size=SOLVE_BATCH, supersample=1):
     return _solved(problem, shadows, batch_size, current)[:2]
 
 
-def _solved(problem, shadows, batch_size, current):
+def _solved(problem, shadows, batch_size, current, solve_environment=True):
     """(albedo, solved, environment coefficients (8, 3) or None when the light has none). In the
     linear colour model the albedo is solved in linear light and returned sRGB-encoded, as the
     avatar keeps it."""
     linear = problem.avatar.linear_light
     albedo, solved, environment = _solved_in_shading_space(problem, shadows, batch_size,
-                                                           srgb_to_linear(current) if linear else current)
+                                                           srgb_to_linear(current) if linear else current,
+                                                           solve_environment)
     return (linear_to_srgb(albedo.clamp(0, 1)) if linear else albedo), solved, environment
 
 
-def _solved_in_shading_space(problem, shadows, batch_size, current):
+def _solved_in_shading_space(problem, shadows, batch_size, current, solve_environment):
     size = current.shape[-1]
     seen = _observations(problem, shadows, batch_size, size)
     environment = problem.avatar.light().environment
     environment = None if environment is None else environment.detach().clone()
+    light_solved = environment is not None and solve_environment   # else the observations' shading holds it
     ambient = problem.avatar.ambient.item()
     if not len(seen.colour):                       # no frame shows a usable pixel of the hand
         return current.clone(), torch.zeros(current.shape[1:], dtype=torch.bool, device=current.device), environment
     uniform = seen.pixel_weights()
     first = _NormalEquations(size, seen, uniform)
     albedo, solved = first.solve(current, ANCHOR * first.data_weight())
-    if environment is not None:
+    if light_solved:
         for _ in range(ENVIRONMENT_ROUNDS):
             environment = _solved_environment(seen, albedo, uniform, ambient)
             seen = seen.under_environment(environment)
@@ -171,7 +173,7 @@ def _solved_in_shading_space(problem, shadows, batch_size, current):
     for _ in range(REWEIGHTINGS):
         weights, clip_variance = _consistency_weights(seen, albedo, size)
         weights = seen.pixel_weights(weights)
-        if environment is not None:
+        if light_solved:
             environment = _solved_environment(seen, albedo, weights, ambient)
             seen = seen.under_environment(environment)
         prior = _prior_weight(seen, first.coverage, albedo, current, clip_variance) if prior is None else prior
@@ -450,20 +452,23 @@ def _conjugate_gradients(apply, rhs, x, inverse_diagonal, iterations, tolerance=
 
 
 @torch.no_grad()
-def solve_avatar_albedo(problem, shadows) -> dict:
-    """Replace the avatar's albedo (and environment light, when it has one) by the solved ones
-    where the frames decide them (in place); returns the share of the UV charts solved, the mean
-    change there, and the environment's relative strength before and after."""
+def solve_avatar_albedo(problem, shadows, solve_environment=True) -> dict:
+    """Replace the avatar's albedo (and environment light, when it has one and `solve_environment`)
+    by the solved ones where the frames decide them (in place); returns the share of the UV charts
+    solved, the mean change there, and the environment's relative strength before and after.
+    With `solve_environment` False the light is held as it stands and the albedo alone is solved
+    (the finer pass of fitting._after_the_stages)."""
     avatar = problem.avatar
     before = avatar.light().environment
-    before = None if before is None else before.detach().clone()
-    albedo, solved, environment = _solved(problem, shadows, SOLVE_BATCH, avatar.albedo.detach().clamp(0, 1))
+    before = None if before is None or not solve_environment else before.detach().clone()
+    albedo, solved, environment = _solved(problem, shadows, SOLVE_BATCH, avatar.albedo.detach().clamp(0, 1),
+                                          solve_environment)
     solved = solved & (problem.uv_mask.to(solved.device) > 0)
     change = (albedo - avatar.albedo.clamp(0, 1)).abs().mean(0)[solved]
     avatar.albedo.copy_(torch.where(solved[None], albedo, avatar.albedo))
     figures = {"solved_fraction": float(solved.sum() / (problem.uv_mask > 0).sum().clamp(min=1)),
                "mean_change": float(change.mean()) if change.numel() else 0.0}
-    if environment is not None:
+    if before is not None:
         avatar.environment.copy_(environment)
         ambient = avatar.ambient.item()
         figures["environment_strength"] = {"before": relative_strength(before.cpu().numpy(), ambient),

@@ -61,7 +61,9 @@ ENVIRONMENT_MIN_FRAMES = 8
 SPECULAR_THRESHOLD = 0.03
 KNOWN_APPEARANCE = SHAPE + APPEARANCE   # what a fit with known appearance takes from another fit, frozen
 # settings of what runs after the stages: a resumed fit may change them (they do not touch the checkpoint)
-AFTER_THE_STAGES = ("solve_albedo",)
+AFTER_THE_STAGES = ("solve_albedo", "solve_resolution")
+# the key of FitState.albedo_solve that holds the figures of its finer pass (albedo alone, at solve_resolution)
+FINER_SOLVE = "finer"
 # a budgeted fit resumes with a new budget, or without one on the schedule it had (FitState.schedule)
 BUDGET = ("budget_seconds",)
 
@@ -247,8 +249,9 @@ def _validate(validator, state, run, index, estimate, reporter):
 
 def _after_the_stages(problem, state, reporter, save, validator=None):
     """The avatar back at its best validation check (when the last scored below it), the albedo
-    solved from the frames, then the unseen texels filled (each once: a resumed fit skips what
-    has run)."""
+    solved from the frames (with the environment light, at the working size), the light's `auto`
+    decisions, the albedo alone solved again from finer frames where `solve_resolution` asks for
+    them, then the unseen texels filled (each once: a resumed fit skips what has run)."""
     if validator is not None and state.albedo_solve is None and state.texture_fill is None:
         best = restore_best(validator, state)
         if best is not None:
@@ -259,23 +262,30 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
     with timed("occlusion"):
         problem.avatar.measure_occlusion(exact=True)   # at the final poses, in a resumed fit too
     solving = problem.settings.solve_albedo and not problem.known_appearance
-    seen = problem   # the frames the texture is solved from: at solve_resolution where it is finer
-    if solving and (state.albedo_solve is None or state.texture_fill is None):
-        with timed("albedo_solve"):
-            seen = problem.at_resolution(problem.settings.solve_resolution)
     if state.albedo_solve is None and solving:
         with timed("albedo_solve"):
-            state.albedo_solve = solve_avatar_albedo(seen, state.shadows.on)
+            state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on)
         reporter.log(f"albedo solved from the frames on the final geometry and light: "
                      f"{state.albedo_solve['solved_fraction']:.0%} of the texels "
                      f"(mean change {state.albedo_solve['mean_change']:.3f})"
-                     + (" with the environment light" if "environment_strength" in state.albedo_solve else "")
-                     + (f", frames at {max(seen.clip.height, seen.clip.width)} px" if seen is not problem else ""))
+                     + (" with the environment light" if "environment_strength" in state.albedo_solve else ""))
         with timed("light_decisions"):
-            _decide_light(problem, state, reporter, solved=seen)
+            _decide_light(problem, state, reporter, solved=problem)
         save()
     with timed("light_decisions"):
         _decide_light(problem, state, reporter, solved=None)     # without an albedo solve: as the stages left it
+    seen = problem   # the frames the texture is solved from: at solve_resolution where it is finer
+    if solving and state.texture_fill is None:
+        with timed("albedo_solve"):
+            seen = problem.at_resolution(problem.settings.solve_resolution)
+        if seen is not problem and FINER_SOLVE not in state.albedo_solve:
+            with timed("albedo_solve"):
+                finer = solve_avatar_albedo(seen, state.shadows.on, solve_environment=False)
+            state.albedo_solve = {**state.albedo_solve, FINER_SOLVE: finer}
+            reporter.log(f"albedo solved again from the frames at {max(seen.clip.height, seen.clip.width)} px, "
+                         f"the light held: {finer['solved_fraction']:.0%} of the texels "
+                         f"(mean change {finer['mean_change']:.3f})")
+            save()
     if state.texture_fill is None and not problem.known_appearance:
         with timed("texture_fill"):
             state.texture_fill = fill_avatar_albedo(problem.avatar, decided_texels(seen))
