@@ -211,10 +211,10 @@ def build_parser():
                      help="solve the final albedo from the frames once geometry and light are final (default: on; "
                           "sharp detail such as tattoos, docs/fidelity.md)")
     fit.add_argument("--solve-resolution", type=int, default=None, metavar="PX",
-                     help="the long side, pixels, of the frames the final albedo is solved from: finer than the "
-                          "working images, the texture takes what the footage shows of the skin (never above the "
-                          "clip's own size; default: the working size. At 448 a phone-like clip gained 0.4 dB held out, a sun-lit "
-                          "one lost 5%% of its L1: docs/fidelity.md)")
+                     help="the long side, pixels, of the frames the final albedo is solved from a second time, the "
+                          "light held: finer than the working images, the texture takes what the footage shows of "
+                          "the skin (never above the clip's own size; 0: the working frames alone; default: the "
+                          "preset's, 448 for fast and full: on a phone-like clip +0.4 dB held out, docs/fidelity.md)")
     fit.add_argument("--exposure", choices=("auto", "on", "off"), default=None,
                      help="per-frame exposure and white-balance gains: auto (default) switches them on when the "
                           "footage's background brightness changes over the clip (a phone's automatic exposure)")

@@ -255,3 +255,23 @@ def test_the_presets_texture_follows_the_working_image_size():
     assert settings_for("fast", 30, image_size=256).texture_size == 256
     assert settings_for("fast", 30, image_size=96).texture_size == 128
     assert settings_for("paper", 30, image_size=256, texture_size=1024).texture_size == 1024  # the user's choice
+
+
+def test_the_albedo_solves_finer_frames_are_the_clips_own_at_most():
+    """solve_resolution is cut to the clip's own size, and dropped (no second pass) where that is
+    no finer than the working images."""
+    from pipeline.fit.settings import settings_for
+
+    assert settings_for("fast", 30, image_size=448, solve_resolution=1024).solve_resolution == 448
+    assert settings_for("fast", 30, image_size=1920, solve_resolution=448).solve_resolution == 448
+    assert settings_for("fast", 30, image_size=256, solve_resolution=448).solve_resolution is None   # the demo
+    assert settings_for("fast", 30, image_size=200, solve_resolution=448).solve_resolution is None
+    assert settings_for("fast", 30, solve_resolution=448).solve_resolution == 448     # size unknown: as asked
+    assert settings_for("preview", 30, image_size=256, solve_resolution=200).solve_resolution == 200  # 160 px work
+    # the presets: fast and full read the import's 448 px frames a second time, preview and paper do not
+    assert settings_for("fast", 30, image_size=448).solve_resolution == 448
+    assert settings_for("full", 30, image_size=1080).solve_resolution == 448
+    assert settings_for("fast", 30, image_size=256).solve_resolution is None
+    assert settings_for("fast", 30, image_size=448, solve_resolution=0).solve_resolution == 0    # the user's "off"
+    assert settings_for("preview", 30, image_size=448).solve_resolution is None
+    assert settings_for("paper", 30, image_size=448).solve_resolution is None

@@ -9,8 +9,8 @@ While the fit runs, `TimeLeft` turns them into the time left: the stage under wa
 observed rate (the median of its recent steps), the stages to come at their calibrated cost
 scaled by how fast this machine has been running in the last minute or so compared with the
 calibration (a second process that starts halfway slows every stage alike). The work after the stages (the
-albedo solve, the texture fill, the outputs: every frame rendered a few times) is costed from
-the appearance step's cost per frame.
+albedo solve, the texture fill, the outputs: every frame rendered a few times, and some work over the
+texture) is costed from the joint step's cost per frame and the texture's size (`after_stages_seconds`).
 
 Small fits (tests, quick looks) skip the calibration: their estimate uses FALLBACK_COSTS.
 `measure_step_costs` is the fit's calibration step; FitEstimate reads its costs and, with a
@@ -42,8 +42,17 @@ SPEED_MEMORY_SECONDS = 60.0  # ...and follows a change (another process starting
 # a fit with the room light's occlusion measures every frame's about this many times: at the start of the two
 # shaded stages, at the end, and as poses move (the phone-like clip's `fast` fit: 120 measurements of 24 frames)
 OCCLUSION_MEASUREMENTS = 5
-AFTER_STAGES_FACTOR = 6.5    # albedo solve + fill + outputs: this many appearance steps per batch of frames
-#                              (measured on the 150-frame clip with the fused renderer: 5.7 on `fast`, 7.3-8.5 on `full`)
+# The work after the stages, fitted to report.json's after_stages_seconds and output_seconds (docs/performance.md,
+# "The work after the stages"): every fitted frame rendered this many times at a joint step's cost per frame by the
+# albedo solve and the outputs, plus seconds of work over a 256 texture (the solve's conjugate gradients, with the
+# environment light's alternation when it may be on; the fill), scaled by the texels; the finer solve's frames
+# (solve_resolution) at their share of pixels.
+SOLVE_FRAME_PASSES = 1.5
+OUTPUT_FRAME_PASSES = 0.9
+FILL_SECONDS = 4.5
+LIGHT_SOLVE_SECONDS = 7.4
+FINER_FRAME_PASSES = 1.4
+FINER_TEXTURE_SECONDS = 3.0
 
 
 # seconds per step at 256 px and batches of 6 (the alignment: per frame), measured on a 2-core CPU
@@ -95,11 +104,20 @@ def fallback_costs(settings, frame_count) -> StepCosts:
     seconds = {kind: cost * scale for kind, cost in FALLBACK_COSTS.items()}
     align = StepKind(StageKind.ALIGN)
     seconds[align] = FALLBACK_COSTS[align] * frame_count * (settings.resolution / 256) ** 2
-    return StepCosts(seconds, _after_stages(seconds, settings, frame_count), calibrated=False)
+    return StepCosts(seconds, after_stages_seconds(seconds, settings, frame_count), calibrated=False)
 
 
-def _after_stages(seconds, settings, frame_count):
-    return AFTER_STAGES_FACTOR * seconds[StepKind(StageKind.APPEARANCE)] * frame_count / settings.batch_size
+def after_stages_seconds(seconds, settings, frame_count) -> float:
+    """Seconds of the work after the stages of a fit with step costs `seconds` ({StepKind: s})."""
+    frames = seconds[StepKind(StageKind.JOINT)] / settings.batch_size * frame_count   # one joint pass over them
+    texels = (settings.texture_size / 256) ** 2
+    total = OUTPUT_FRAME_PASSES * frames + FILL_SECONDS * texels
+    if settings.solve_albedo:
+        total += SOLVE_FRAME_PASSES * frames + (LIGHT_SOLVE_SECONDS * texels if settings.environment != "off" else 0.0)
+        if settings.solve_resolution and settings.solve_resolution > settings.resolution:
+            total += (FINER_FRAME_PASSES * (settings.solve_resolution / settings.resolution) ** 2 * frames
+                      + FINER_TEXTURE_SECONDS * texels)
+    return total
 
 
 def active_stages(problem, schedule: Schedule):
@@ -159,7 +177,7 @@ def calibrate(problem, schedule: Schedule, kinds) -> StepCosts:
     for kind, cost in fallback.items():   # kinds not timed (nothing to move) cost what the model says
         seconds.setdefault(kind, cost)
     occlusion_seconds *= OCCLUSION_MEASUREMENTS
-    return StepCosts(seconds, _after_stages(seconds, problem.settings, len(problem.frames)) + occlusion_seconds,
+    return StepCosts(seconds, after_stages_seconds(seconds, problem.settings, len(problem.frames)) + occlusion_seconds,
                      calibrated=True, calibration_seconds=time.perf_counter() - start)
 
 

@@ -49,12 +49,12 @@ class FitSettings:
     # 0.26 dB held out (its noisy batch losses read as a plateau; docs/fit.md)
     plateau_tolerance: float = 0.0
     solve_albedo: bool = True       # the final albedo solved from the frames (albedo_solve.py)
-    # the long side, pixels, of the frames the albedo solve reads (FitProblem.at_resolution): the stages fit the
-    # shape, poses and light at `resolution`, but the texture can take what finer frames show of the skin (never
-    # above the clip's own size). None or 0: the working resolution, the default: at 448 px the phone-like clip
-    # gained 0.4 dB held out on 3 seeds of 3 and the MediaPipe video was level, but on the 150-frame sun clip the
-    # solve's room light took on colour (9.8% of the ambient against 1.8%) and `full`'s L1 rose 5%
-    # (docs/fidelity.md, "The albedo solved from the footage's own pixels")
+    # the long side, pixels, of the frames the albedo solve reads a second time, the light held
+    # (FitProblem.at_resolution, fitting._after_the_stages): the stages fit the shape, poses and light at `resolution`,
+    # but the texture can take what finer frames show of the skin (never above the clip's own size). None or 0: the
+    # working frames alone. `fast` and `full`: 448, the import's size; on the phone-like clip (3 seeds) held out
+    # +0.4-0.5 dB and the albedo sharper, the 150-frame sun clip's L1 level (docs/fidelity.md, "The albedo solved
+    # again from the footage's own pixels")
     solve_resolution: int | None = None
     shadows: str = "auto"          # auto | on | off
     exposure: str = "auto"         # per-frame exposure gains: auto | on | off (problem.py decides auto)
@@ -179,14 +179,15 @@ PRESETS = {
     # two minutes")
     "preview": dict(resolution=160, texture_size=256, batch_size=10, steps=(20, 170, 0), align_steps=50,
                     environment="off", specular="off"),
-    "fast": dict(resolution=256, texture_size=256, batch_size=6, steps=(200, 300, 200)),
+    "fast": dict(resolution=256, texture_size=256, batch_size=6, steps=(200, 300, 200), solve_resolution=448),
     # fast's fit carried on to convergence: twice its steps after the alignment, the joint and appearance stages'
     # rates falling to a tenth (at constant rates the poses wander once the fit has converged). Against fast, 3 seeds
     # each (docs/performance.md, "`full`: fast's fit carried to convergence"): held-out PSNR +0.22 dB on the
     # phone-like clip and +0.28 on the demo, fitted frames +0.4 / +0.7 dB, joints 8% lower on the phone-like clip
     # (level on the demo), new poses +0.8 dB in the overlap there (-0.3 on the demo, whose hand keeps MediaPipe's
     # size, 2.5% small); 1.5-1.8x fast's time on 30 frames
-    "full": dict(resolution=256, texture_size=256, batch_size=6, steps=(400, 600, 400), final_rate_fraction=0.1),
+    "full": dict(resolution=256, texture_size=256, batch_size=6, steps=(400, 600, 400), final_rate_fraction=0.1,
+                 solve_resolution=448),
     # HARP's own schedule, to compare with the paper: 100 / 50 / 50 epochs over every frame, batches of ~18 frames
     # at 448 px; the `full` preset until the one above replaced it (no better than fast on the clips measured)
     "paper": dict(resolution=448, texture_size=512, batch_size=18, steps=(None, None, None), max_frames=100000,
@@ -224,6 +225,10 @@ def settings_for(preset, frame_count, image_size=None, **overrides):
     if image_size is not None and overrides.get("texture_size") is None:
         working = min(values["resolution"], image_size)
         values["texture_size"] = min(values["texture_size"], texture_size_for(working))
+    if image_size is not None and values.get("solve_resolution"):
+        # the frames the albedo solve reads are the clip's own at most; at the working size, no second pass
+        finer = min(values["solve_resolution"], image_size)
+        values["solve_resolution"] = finer if finer > min(values["resolution"], image_size) else None
     if preset == "paper":
         fitted = min(frame_count, values.get("max_frames", FitSettings.max_frames))
         per_epoch = max(1, -(-fitted // values["batch_size"]))
