@@ -52,9 +52,9 @@ class FitSettings:
     # the long side, pixels, of the frames the albedo solve reads a second time, the light held
     # (FitProblem.at_resolution, fitting._after_the_stages): the stages fit the shape, poses and light at `resolution`,
     # but the texture can take what finer frames show of the skin (never above the clip's own size). None or 0: the
-    # working frames alone. `fast` and `full`: 448, the import's size; on the phone-like clip (3 seeds) held out
-    # +0.4-0.5 dB and the albedo sharper, the 150-frame sun clip's L1 level (docs/fidelity.md, "The albedo solved
-    # again from the footage's own pixels")
+    # working frames alone. `fast` and `full`: 448, the import's size; on the phone-like clip held out +0.31-0.39 dB
+    # and new poses +0.25 dB on 3 seeds of 3, the 150-frame sun clip's L1 level; about 44 s on 150 frames
+    # (docs/fidelity.md, "The albedo solved again from the footage's own pixels, the light held")
     solve_resolution: int | None = None
     shadows: str = "auto"          # auto | on | off
     exposure: str = "auto"         # per-frame exposure gains: auto | on | off (problem.py decides auto)
