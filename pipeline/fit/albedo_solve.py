@@ -460,7 +460,8 @@ def solve_avatar_albedo(problem, shadows, solve_environment=True) -> dict:
     (the finer pass of fitting._after_the_stages)."""
     avatar = problem.avatar
     before = avatar.light().environment
-    before = None if before is None or not solve_environment else before.detach().clone()
+    light_solved = before is not None and solve_environment
+    before = before.detach().clone() if light_solved else None
     albedo, solved, environment = _solved(problem, shadows, SOLVE_BATCH, avatar.albedo.detach().clamp(0, 1),
                                           solve_environment)
     solved = solved & (problem.uv_mask.to(solved.device) > 0)
@@ -468,7 +469,7 @@ def solve_avatar_albedo(problem, shadows, solve_environment=True) -> dict:
     avatar.albedo.copy_(torch.where(solved[None], albedo, avatar.albedo))
     figures = {"solved_fraction": float(solved.sum() / (problem.uv_mask > 0).sum().clamp(min=1)),
                "mean_change": float(change.mean()) if change.numel() else 0.0}
-    if before is not None:
+    if light_solved:
         avatar.environment.copy_(environment)
         ambient = avatar.ambient.item()
         figures["environment_strength"] = {"before": relative_strength(before.cpu().numpy(), ambient),
