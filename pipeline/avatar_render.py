@@ -13,7 +13,7 @@ from .formats import hand_model_file as fmt
 from .handmodel.lbs import HandModel
 from .handmodel.poses import NAMED_POSES
 from .handmodel.rotations import axis_angle_to_matrix, matrix_to_axis_angle
-from .render.occlusion import bounce_radiance, hand_focus, lost_light
+from .render.occlusion import bounce_radiance, hand_lost_light
 from .render.renderer import Appearance, Light, RenderMesh, render
 
 
@@ -75,7 +75,7 @@ def render_avatar(folder, out, pose="rest", frame=None, azimuth=0.0, elevation=0
         lobe = specular_lobe.from_description(fitted)
         specular = None if lobe is None else tuple(torch.tensor(value) for value in lobe)
         mesh = RenderMesh.from_model_data(model.data)
-        occlusion = lost_light(vertices, mesh.faces, hand_focus(model.data.vertex_parts)) if fitted.get("occlusion", False) else None
+        occlusion = hand_lost_light(vertices, model.data) if fitted.get("occlusion", False) else None
         images = render(vertices, mesh, K, size, size, outputs=("rgb",),
                         appearance=appearance,
                         light=Light(light_position, ambient, shadows=use_shadows, environment=environment,

@@ -47,7 +47,7 @@ def known_scene(folder):
     from pipeline.evaluate.exact_clips import mottled_albedo
     from pipeline.formats import colour_model
     from pipeline.handmodel.lbs import HandModel
-    from pipeline.render.occlusion import bounce_radiance, hand_focus, lost_light
+    from pipeline.render.occlusion import bounce_radiance, hand_lost_light
     from pipeline.render.renderer import Appearance, RenderMesh
 
     info = seq.read_sequence_info(folder)
@@ -60,7 +60,7 @@ def known_scene(folder):
                          for i in count])[..., None]
     vertices = torch.as_tensor(gt.vertices, dtype=torch.float64)
     mesh = RenderMesh.from_model_data(model.data, dtype=torch.float64)
-    occlusion = lost_light(vertices, mesh.faces, hand_focus(model.data.vertex_parts)) \
+    occlusion = hand_lost_light(vertices, model.data) \
         if gt.light.get("occlusion", False) else None
     bounce = None if occlusion is None else bounce_radiance(torch.as_tensor(mottled_albedo()), gt.light["ambient"],
                                                             colour_model.is_linear(gt.light))

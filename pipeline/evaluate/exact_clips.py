@@ -21,7 +21,7 @@ from ..formats import sequence_folder as seq
 from ..formats.colour_model import KEY, LINEAR, checked
 from ..formats.camera import project
 from ..handmodel.lbs import HandModel
-from ..render.occlusion import bounce_radiance, hand_focus, lost_light
+from ..render.occlusion import bounce_radiance, hand_lost_light
 from ..render.renderer import Appearance, Light, RenderMesh, render
 
 BACKGROUND = (0.25, 0.27, 0.3)
@@ -116,7 +116,7 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
                       specular=None if specular is None else tuple(torch.tensor(float(v), dtype=torch.float64)
                                                                    for v in specular),
                       linear=checked(colour_model) == LINEAR,
-                      occlusion=lost_light(out.vertices, mesh.faces, hand_focus(model.data.vertex_parts)) if occlusion else None,
+                      occlusion=hand_lost_light(out.vertices, model.data) if occlusion else None,
                       bounce=bounce_radiance(torch.as_tensor(albedo), AMBIENT, checked(colour_model) == LINEAR)
                       if occlusion else None)
         images = render(out.vertices, mesh, torch.as_tensor(K), size, size, outputs=("rgb", "alpha"),

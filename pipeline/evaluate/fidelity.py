@@ -58,7 +58,7 @@ from ..handmodel.lbs import HandModel, load_model_data
 from ..handmodel.mirror import mirror_axis_angle
 from ..handmodel.poses import NAMED_POSES
 from ..handmodel.subdivision import subdivide_model_data
-from ..render.occlusion import bounce_radiance, hand_focus, lost_light
+from ..render.occlusion import bounce_radiance, hand_lost_light
 from ..render.renderer import Appearance, Light, RenderMesh, render
 from ..render.shading import vertex_normals
 from .albedo import albedo_error, albedo_truth
@@ -265,7 +265,7 @@ def render_framed(subjects, frame: Framing, light, shading_normals=False, occlus
         for model, appearance in subjects:
             vertices = model(pose=frame.pose, global_orient=frame.global_orient).vertices + frame.shift
             mesh = RenderMesh.from_model_data(model.data)
-            lit = dataclasses.replace(light, occlusion=lost_light(vertices, mesh.faces, hand_focus(model.data.vertex_parts)),
+            lit = dataclasses.replace(light, occlusion=hand_lost_light(vertices, model.data),
                                       bounce=bounce_radiance(appearance.albedo, light.ambient, light.linear)) \
                 if occlusion else light
             out = render(vertices, mesh, frame.K, frame.size, frame.size,

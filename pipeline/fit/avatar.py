@@ -20,6 +20,8 @@ formats/specular_lobe.py; in use only while `specular_on` is set).
 """
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import torch
 
@@ -27,7 +29,7 @@ from ..formats import environment_light
 from ..formats.colour_model import LINEAR, checked
 from ..formats.specular_lobe import LEVEL_MAX, ROUGHNESS_RANGE
 from ..handmodel.lbs import HandModel
-from ..render.occlusion import bounce_radiance, hand_focus, lost_light
+from ..render.occlusion import bounce_radiance, hand_lost_light
 from ..render.renderer import Appearance, Light, RenderMesh
 from ..render.fused import vertex_normals
 
@@ -99,7 +101,9 @@ class Avatar(torch.nn.Module):
         # a pose and kept (not saved)
         self.occlusion = False
         self._lost, self._lost_pose, self._lost_betas = None, None, None
-        self._occlusion_focus = hand_focus(model.data.vertex_parts, device)
+        # what measuring it has cost in this process (report.json's occlusion): frames measured, seconds (on CUDA
+        # the seconds to queue the work)
+        self.occlusion_measurements, self.occlusion_seconds = 0, 0.0
         self.mesh = RenderMesh.from_model_data(model.data, device=device, dtype=dtype)
         if coarse_model is not None:
             self.coarse_mesh = RenderMesh.from_model_data(coarse_model.data, device=device, dtype=dtype)
@@ -181,9 +185,12 @@ class Avatar(torch.nn.Module):
             self._lost_betas = self.betas.detach().clone()
         stale = (pose - self._lost_pose[batch]).abs().amax(1) > OCCLUSION_POSE_TOLERANCE
         if stale.any():
-            self._lost[batch[stale]] = lost_light(vertices[stale].detach(), self.mesh.faces,
-                                                  self._occlusion_focus).to(self._lost.dtype)
+            start = time.perf_counter()
+            self._lost[batch[stale]] = hand_lost_light(vertices[stale].detach(), self.model.data,
+                                                       self.mesh.faces).to(self._lost.dtype)
             self._lost_pose[batch[stale]] = pose[stale]
+            self.occlusion_measurements += int(stale.sum())
+            self.occlusion_seconds += time.perf_counter() - start
         return self._lost[batch]
 
     @torch.no_grad()

@@ -137,6 +137,8 @@ def write_outputs(out, problem, state, held_out=(), estimate=None, validation_fr
                      "lobe": specular_lobe.to_description(*(avatar.specular() or (None, None)))},
         "exposure": {"decision": problem.exposure_note,
                      "gain": torch.exp(avatar.exposure.detach()).cpu().tolist() if problem.exposure_on else None},
+        "occlusion": {"requested": settings.occlusion, "frame_measurements": avatar.occlusion_measurements,
+                      "seconds": avatar.occlusion_seconds},
         "mask_cut_frames": problem.mask_cut_frames,
         "cpu_threads": torch.get_num_threads(), "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY"),
     }

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import torch
 
 from .skinning_weights import prune_weights
 
@@ -56,6 +57,15 @@ def midpoint_parents(data):
     _, edges, order = _subdivision_order(data)
     kept = np.repeat(np.arange(data.num_vertices)[:, None], 2, axis=1)
     return np.concatenate([kept, edges])[order]
+
+
+def unsubdivided_faces(faces):
+    """(F / 4, 3) the faces of the mesh before one subdivision, in the subdivided mesh's point
+    numbering, from the subdivided faces (4F, 3) alone: subdivide_faces puts each face's corner
+    a first in the first quarter, b second in the second, c third in the third."""
+    count = len(faces) // 4
+    corners = (faces[:count, 0], faces[count:2 * count, 1], faces[2 * count:3 * count, 2])
+    return (torch.stack(corners, 1) if isinstance(faces, torch.Tensor) else np.stack(corners, axis=1))
 
 
 def subdivide_model_data(data):

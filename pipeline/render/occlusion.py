@@ -33,6 +33,7 @@ import torch
 from ..formats.colour_model import srgb_to_linear
 from ..formats.environment_light import radiance_basis, sphere_directions
 from ..formats.hand_model_file import PART_NAMES
+from ..handmodel.subdivision import unsubdivided_faces
 from .rasterize import project, rasterize
 from .shadow_map import light_view
 from .shading import vertex_normals
@@ -55,11 +56,13 @@ def _quadrature(dtype, device, count):
 
 
 @torch.no_grad()
-def blocked_directions(points, faces, directions, resolution=RESOLUTION, focus=None, chunk=16):
+def blocked_directions(points, faces, directions, resolution=RESOLUTION, focus=None, chunk=16, occluders=None):
     """(B, V, D) bool: direction d (unit, camera frame) is blocked at vertex v of frame b by the
     mesh itself. points (B, V, 3) in the camera frame, faces (F, 3). The depth maps hold the
-    vertices `focus` ((V,) bool, default all: the hand without its forearm keeps the texels small);
-    a vertex outside a map is taken as open in its direction."""
+    vertices `focus` ((V,) bool, default all: the hand without its forearm keeps the texels small)
+    and draw the faces `occluders` (default `faces`: a coarser surface over the same points draws
+    faster); a vertex outside a map is taken as open in its direction."""
+    occluders = faces if occluders is None else occluders
     batch, count = points.shape[0], points.shape[1]
     normals = vertex_normals(points, faces)
     receivers = points + NORMAL_OFFSET * normals
@@ -76,7 +79,7 @@ def blocked_directions(points, faces, directions, resolution=RESOLUTION, focus=N
         eyes = view_centre + 1.5 * part.repeat_interleave(batch, 0)
         rotation, eye, K, in_view = light_view(view_points, eyes, resolution, target=view_centre,
                                                radius=radius.amax())
-        depth = rasterize(in_view, faces, K, resolution, resolution).depth             # (dB, R, R)
+        depth = rasterize(in_view, occluders, K, resolution, resolution).depth         # (dB, R, R)
         receiver = torch.einsum("bij,bvj->bvi", rotation, receivers.repeat(d, 1, 1) - eye[:, None])
         texel = project(receiver, K)
         inside = ((texel >= 0) & (texel < resolution)).all(-1)
@@ -94,15 +97,27 @@ def blocked_directions(points, faces, directions, resolution=RESOLUTION, focus=N
 
 
 @torch.no_grad()
-def lost_light(points, faces, focus=None, directions=DIRECTIONS, resolution=RESOLUTION):
+def lost_light(points, faces, focus=None, directions=DIRECTIONS, resolution=RESOLUTION, occluders=None):
     """(B, V, 9) per vertex: [O_0, O_1..O_8] (module docstring), the room light a vertex of the
     posed mesh points (B, V, 3) (camera frame) does not get for the hand in the way; `focus`
-    as blocked_directions'."""
+    and `occluders` as blocked_directions'."""
     unit, rows = _quadrature(points.dtype, points.device, directions)
-    blocked = blocked_directions(points, faces, unit, resolution, focus)               # (B, V, D)
+    blocked = blocked_directions(points, faces, unit, resolution, focus, occluders=occluders)  # (B, V, D)
     normals = vertex_normals(points, faces)
     cosine = (normals @ unit.T).clamp(min=0)                                           # (B, V, D)
     return (blocked.to(points.dtype) * cosine) @ rows
+
+
+def hand_lost_light(points, data, faces=None):
+    """lost_light of a posed hand model's mesh: points (B, V, 3), `data` its HandModelData (faces:
+    its mesh's, default data.faces), the depth maps framing the hand without its forearm
+    (hand_focus) and drawing the unsubdivided surface where the mesh is a subdivided one (a
+    quarter of the faces to draw; the vertices it leaves out lie within a fraction of a
+    millimetre of it, under the depth test's bias). Every user of the room light's occlusion
+    measures it here, so the fit, `harp render` and the evaluation see the same."""
+    faces = torch.as_tensor(data.faces if faces is None else faces, dtype=torch.long, device=points.device)
+    occluders = unsubdivided_faces(faces) if data.metadata.get("subdivided", 0) else None
+    return lost_light(points, faces, hand_focus(data.vertex_parts, points.device), occluders=occluders)
 
 
 def hand_focus(vertex_parts, device=None):
