@@ -14,9 +14,11 @@ import torch
 
 
 def _csr(rows, columns, values, shape, dtype, device):
-    matrix = torch.sparse_coo_tensor(torch.stack([rows, columns]), values, shape, check_invariants=True)
-    with warnings.catch_warnings():     # torch calls its CSR support "beta" at every construction
+    with warnings.catch_warnings():     # torch calls its CSR support "beta" at every construction, and
         warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
+        # torch 2.11 with CUDA says at the first construction that its invariant checks are off by default
+        warnings.filterwarnings("ignore", message="Sparse invariant checks are implicitly disabled")
+        matrix = torch.sparse_coo_tensor(torch.stack([rows, columns]), values, shape, check_invariants=True)
         return matrix.coalesce().to(dtype=dtype, device=device).to_sparse_csr()
 
 
