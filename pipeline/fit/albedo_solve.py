@@ -111,7 +111,7 @@ class _Observations:
 
 
 @torch.no_grad()
-def solved_albedo(problem, shadows, batch_size=SOLVE_BATCH, supersample=1):
+def solved_albedo(problem, shadows, batch_size=SOLVE_BATCH, supersample=1, frames=None, solve_environment=True):
     """((3, T, T) albedo in [0, 1] that explains the problem's frames best with its avatar's
     current geometry, light and exposure gains, (T, T) bool: texels the frames decide).
 
@@ -128,32 +128,34 @@ def solved_albedo(problem, shadows, batch_size=SOLVE_BATCH, supersample=1):
 
     `supersample` > 1 solves a texture that many times finer (the current albedo enlarged as its
     prior) and returns its area average at the avatar's size: detail finer than a texel then
-    explains the pixels instead of reading as their disagreement."""
+    explains the pixels instead of reading as their disagreement. `frames` (indices into the fitted
+    frames, default all) are the frames read; `solve_environment` False holds the room light as it
+    stands (else it is solved with the albedo, and what it became is not kept)."""
     current = problem.avatar.albedo.detach().clamp(0, 1)
     if supersample > 1:
         finer = torch.nn.functional.interpolate(current[None], scale_factor=supersample, mode="bilinear",
                                                 align_corners=False)[0]
-        albedo, solved, _ = _solved(problem, shadows, batch_size, finer)
+        albedo, solved, _ = _solved(problem, shadows, batch_size, finer, solve_environment, frames)
         albedo = torch.nn.functional.avg_pool2d(albedo[None], supersample)[0]
         solved = torch.nn.functional.max_pool2d(solved[None, None].float(), supersample)[0, 0] > 0
         return albedo, solved
-    return _solved(problem, shadows, batch_size, current)[:2]
+    return _solved(problem, shadows, batch_size, current, solve_environment, frames)[:2]
 
 
-def _solved(problem, shadows, batch_size, current, solve_environment=True):
+def _solved(problem, shadows, batch_size, current, solve_environment=True, frames=None):
     """(albedo, solved, environment coefficients (8, 3) or None when the light has none). In the
     linear colour model the albedo is solved in linear light and returned sRGB-encoded, as the
     avatar keeps it."""
     linear = problem.avatar.linear_light
     albedo, solved, environment = _solved_in_shading_space(problem, shadows, batch_size,
                                                            srgb_to_linear(current) if linear else current,
-                                                           solve_environment)
+                                                           solve_environment, frames)
     return (linear_to_srgb(albedo.clamp(0, 1)) if linear else albedo), solved, environment
 
 
-def _solved_in_shading_space(problem, shadows, batch_size, current, solve_environment):
+def _solved_in_shading_space(problem, shadows, batch_size, current, solve_environment, frames=None):
     size = current.shape[-1]
-    seen = _observations(problem, shadows, batch_size, size)
+    seen = _observations(problem, shadows, batch_size, size, frames)
     environment = problem.avatar.light().environment
     environment = None if environment is None else environment.detach().clone()
     light_solved = environment is not None and solve_environment   # else the observations' shading holds it
@@ -230,8 +232,8 @@ def least_squares_above(normal, rhs, constraints, floor, stiffness=ENVIRONMENT_S
     return x
 
 
-def _observations(problem, shadows, batch_size, size):
-    """The usable pixels of the fitted frames (_Observations). In the linear colour model
+def _observations(problem, shadows, batch_size, size, frames=None):
+    """The usable pixels of the fitted frames (of `frames`, indices into them; default all) (_Observations). In the linear colour model
     (formats/colour_model.py) the equations hold in linear light: each pixel's colour is its
     frame's value over the exposure gain, decoded from sRGB, and the shading is rendered without
     the encoding (the gain is then 1 in the equations). Weighting each equation by the curve's
@@ -243,7 +245,8 @@ def _observations(problem, shadows, batch_size, size):
     sheen_only = Appearance(torch.zeros_like(avatar.albedo), appearance.normal_map)   # colour = the lobe's share
     facing_on = problem.settings.albedo_facing == "on"
     parts = []
-    for batch in torch.arange(len(problem.frames), device=avatar.albedo.device).split(batch_size):
+    frames = torch.arange(len(problem.frames)) if frames is None else torch.as_tensor(frames, dtype=torch.long)
+    for batch in frames.to(avatar.albedo.device).split(batch_size):
         vertices, _ = avatar.posed(batch)
         light = avatar.light(shadows, batch, vertices)
         environment, specular, linear = light.environment, light.specular, light.linear

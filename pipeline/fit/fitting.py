@@ -20,7 +20,7 @@ import torch
 from ..formats.environment_light import colour_strength, relative_strength
 from ..formats.initial_estimate import read_initial_estimate
 from ..formats.sequence_folder import validate_sequence_folder
-from .albedo_solve import decided_texels, solve_avatar_albedo
+from .albedo_solve import decided_texels, solve_avatar_albedo, solved_albedo
 from .avatar import APPEARANCE, SHAPE, SWITCHES
 from .checkpoint import CHECKPOINT_FILE, CHECKPOINT_VERSION, Checkpoint, FitState, load_checkpoint, save_checkpoint
 from .budget import BudgetKeeper
@@ -44,6 +44,11 @@ from .validation import Validator, restore_best
 # exact clips, drawn without shadows (ratio 0.56: 36.3 dB without, 32.1 with), as for the Cycles sun
 # clip (ratio 0.57: 28.2 dB without, 29.4 with) (docs/fit.md)
 SHADOW_PROBE_FRAMES = 24
+# ...each with its albedo solved from them; shadows stay on unless the renders with them are further from
+# the frames by more than this share of the L1. On the phone-like clip's three fits (a window's soft light
+# from one side) the L1 with shadows was 0.989 / 0.992 / 1.008 of that without, and the albedo solved with
+# them 1.2-1.3 dB nearer the truth on each (docs/fidelity.md, "Shadows decided with the albedo solved")
+SHADOW_TOLERANCE = 0.02
 # an `auto` environment light whose colour varies over the sphere by less than this share of the
 # ambient (environment_light.colour_strength) is switched off. Exact clips over 3 seeds (docs/fidelity.md):
 # 0.035 fitted on a room of 0.038, 0.002 on a clip without one; the demo 0.003, the MediaPipe sample video 0.013
@@ -355,22 +360,40 @@ def _short_budget_note(budget, preset):
 def _decide_shadows(problem, run, reporter):
     """Self-shadowing pays off where the scene's light casts shadows: `auto` decides half-way
     through the joint stage by rendering up to SHADOW_PROBE_FRAMES fitted frames with and without
-    it; it is kept where it brings the renders closer to the frames (lower L1 in the masks). The
-    avatar has been fitted without shadows so far, so shadows win only where they explain what
-    the frames show."""
+    it, each with the albedo solved from those frames for it (the light held; _probe_l1): the
+    avatar has been fitted without shadows so far, and its albedo has taken in every shadow the
+    frames show alike, which a render with shadows would then darken twice. Shadows are kept
+    unless they take the renders further from the frames (L1 in the masks) by more than
+    SHADOW_TOLERANCE: where the frames cannot tell (a shadow that falls on the same skin in every
+    frame that shows it explains them as well as a darker albedo does), the light's own shadows
+    are kept, since a shadow taken into the albedo is wrong in every new pose."""
     decision = run.state.shadows
     if decision.decided or run.stage.kind is not SHADOWS_DECIDED_IN or run.state.step < run.stage.steps // 2:
         return
     count = len(problem.frames)
     probe = np.unique(np.linspace(0, count - 1, min(count, SHADOW_PROBE_FRAMES)).round().astype(int))
     with torch.no_grad():
-        without, with_shadows = (masked_l1(problem, shadows, probe) for shadows in (False, True))
-    decision.on, decision.decided = bool(with_shadows < without), True
+        without, with_shadows = (_probe_l1(problem, shadows, probe) for shadows in (False, True))
+    decision.on, decision.decided = bool(with_shadows < without * (1 + SHADOW_TOLERANCE)), True
     decision.ambient_at_decision = problem.avatar.ambient.item()
     decision.l1_without, decision.l1_with = without, with_shadows
     reporter.log(f"shadows auto: L1 in the masks of {len(probe)} fitted frames {without:.4f} without self-shadowing, "
                  f"{with_shadows:.4f} with -> {'on' if decision.on else 'off'} (fitted ambient ratio "
                  f"{decision.ambient_at_decision:.2f})")
+
+
+def _probe_l1(problem, shadows, probe):
+    """masked_l1 of the fitted frames `probe` with the albedo solved from them for `shadows` (the
+    light held); the avatar's albedo is left as it was."""
+    albedo = problem.avatar.albedo
+    kept = albedo.detach().clone()
+    solved_colours, solved = solved_albedo(problem, shadows, frames=probe, solve_environment=False)
+    solved = solved & (problem.uv_mask.to(solved.device) > 0)
+    albedo.copy_(torch.where(solved[None], solved_colours, kept))
+    try:
+        return masked_l1(problem, shadows, probe)
+    finally:
+        albedo.copy_(kept)
 
 
 def _decide_light(problem, state, reporter, solved):
