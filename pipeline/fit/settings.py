@@ -77,7 +77,8 @@ class FitSettings:
     # "on" | "off" (every point sees the whole room, HARP's light), the default. With the skin's bounce
     # (occlusion.bounce_radiance), on 3 seeds of the demo and the phone-like clip: the frames and joints level, the
     # albedo nearer the truth on 5 of 6 (a third on the demo), new poses +0.4-0.7 dB on 5; off for its cost (5
-    # measurements of 0.19 s per fitted frame: about 140 s on a 150-frame clip; docs/fidelity.md)
+    # measurements per fitted frame, 0.19 s each, about half that since the depth maps draw the unsubdivided
+    # surface: about 70 s on a 150-frame clip) and a phone-like seed within the spread (docs/fidelity.md)
     occlusion: str = "off"
     # frames the alignment left off their silhouettes started again from their neighbours (lost_frames.py):
     # "on" | "off", the default: on the phone-like clip (2 seeds) the fitted and held-out frames gained 0.4-1.3 dB
