@@ -33,7 +33,8 @@ def main():
     model = HandModel.load(args.mode, subdivided=True)
     names = ["fist", "pinch", "spread", "thumbs_up"] * 2
     pose = torch.stack([torch.as_tensor(NAMED_POSES[name], dtype=torch.float32) for name in names])
-    points = model(None, pose, torch.zeros(len(names), 3), torch.tensor([[0.0, 0.0, 0.5]]).repeat(len(names), 1)).vertices
+    placed = torch.tensor([[0.0, 0.0, 0.5]]).repeat(len(names), 1)
+    points = model(None, pose, torch.zeros(len(names), 3), placed).vertices
     faces = torch.as_tensor(model.data.faces, dtype=torch.long)
     focus = occlusion.hand_focus(model.data.vertex_parts)
     ways = {"every face": lambda: occlusion.lost_light(points, faces, focus),
