@@ -75,7 +75,7 @@ def posed_box(model, pose, betas):
 
 def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=(0.0, 0.0), azimuth=0.0, betas=None,
                turn_degrees=TURN_DEGREES, mode="hand", environment=None, specular=None, shadows=False,
-               light_position=LIGHT_POSITION, colour_model=LINEAR, occlusion=False):
+               light_position=LIGHT_POSITION, colour_model=LINEAR, occlusion=False, ambient=AMBIENT):
     """Render `frames` frames of the hand in `pose` ((16, 3) or (F, 16, 3) axis-angle, radians,
     right hand) into the sequence folder `folder` with its exact ground truth (gt.npz,
     gt_albedo.png). The hand (its bounding box in frame 0's pose, centred) is 80% of the image
@@ -110,14 +110,14 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
                     torch.as_tensor(transl))
         albedo = mottled_albedo()
         mesh = RenderMesh.from_model_data(model.data, dtype=torch.float64)
-        light = Light(torch.tensor(light_position, dtype=torch.float64), torch.tensor(AMBIENT, dtype=torch.float64),
+        light = Light(torch.tensor(light_position, dtype=torch.float64), torch.tensor(ambient, dtype=torch.float64),
                       shadows=shadows,
                       environment=None if environment is None else torch.as_tensor(environment, dtype=torch.float64),
                       specular=None if specular is None else tuple(torch.tensor(float(v), dtype=torch.float64)
                                                                    for v in specular),
                       linear=checked(colour_model) == LINEAR,
                       occlusion=hand_lost_light(out.vertices, model.data) if occlusion else None,
-                      bounce=bounce_radiance(torch.as_tensor(albedo), AMBIENT, checked(colour_model) == LINEAR)
+                      bounce=bounce_radiance(torch.as_tensor(albedo), ambient, checked(colour_model) == LINEAR)
                       if occlusion else None)
         images = render(out.vertices, mesh, torch.as_tensor(K), size, size, outputs=("rgb", "alpha"),
                         appearance=Appearance(torch.as_tensor(albedo)), light=light,
@@ -134,7 +134,7 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
     seq.write_ground_truth(folder / seq.GT_FILE, seq.GroundTruth(
         mode=mode, side="right", betas=betas, global_orient=global_orient, transl=transl, pose=pose,
         keypoints3d=keypoints3d, keypoints2d=keypoints2d, vertices=out.vertices.numpy(),
-        light={"preset": "pipeline/evaluate/exact_clips.py", "position": list(light_position), "ambient": AMBIENT,
+        light={"preset": "pipeline/evaluate/exact_clips.py", "position": list(light_position), "ambient": ambient,
                "shadows": shadows,
                "environment": environment_light.to_description(environment),
                specular_lobe.KEY: specular_lobe.to_description(*(specular or (None, None))),

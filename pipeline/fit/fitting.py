@@ -44,11 +44,16 @@ from .validation import Validator, restore_best
 # exact clips, drawn without shadows (ratio 0.56: 36.3 dB without, 32.1 with), as for the Cycles sun
 # clip (ratio 0.57: 28.2 dB without, 29.4 with) (docs/fit.md)
 SHADOW_PROBE_FRAMES = 24
-# ...each with its albedo solved from them; shadows stay on unless the renders with them are further from
-# the frames by more than this share of the L1. On the phone-like clip's three fits (a window's soft light
-# from one side) the L1 with shadows was 0.989 / 0.992 / 1.008 of that without, and the albedo solved with
-# them 1.2-1.3 dB nearer the truth on each (docs/fidelity.md, "Shadows decided with the albedo solved")
+# ...each with its albedo solved from them. Where the point light carries most of the light (a fitted ambient
+# ratio under SHADOW_DOMINANT_AMBIENT) shadows stay on unless the renders with them are further from the frames
+# by more than SHADOW_TOLERANCE of the L1: on the phone-like clip's three fits (a window's soft light from one
+# side, ambient 0.23) the L1 with shadows was 0.989 / 0.992 / 1.008 of that without, and the albedo solved with
+# them 1.2-1.3 dB nearer the truth on each. Where the room's light dominates, a point light's shadows are a
+# small share of the shading and cost a shadow map at every step: they must bring the renders nearer by as
+# much (the demo clip's uniform world, ambient 0.81: L1 and albedo alike either way, to 0.1 dB)
+# (docs/fidelity.md, "Shadows decided with the albedo solved")
 SHADOW_TOLERANCE = 0.02
+SHADOW_DOMINANT_AMBIENT = 0.5
 # an `auto` environment light whose colour varies over the sphere by less than this share of the
 # ambient (environment_light.colour_strength) is switched off. Exact clips over 3 seeds (docs/fidelity.md):
 # 0.035 fitted on a room of 0.038, 0.002 on a clip without one; the demo 0.003, the MediaPipe sample video 0.013
@@ -364,9 +369,11 @@ def _decide_shadows(problem, run, reporter):
     avatar has been fitted without shadows so far, and its albedo has taken in every shadow the
     frames show alike, which a render with shadows would then darken twice. Shadows are kept
     unless they take the renders further from the frames (L1 in the masks) by more than
-    SHADOW_TOLERANCE: where the frames cannot tell (a shadow that falls on the same skin in every
-    frame that shows it explains them as well as a darker albedo does), the light's own shadows
-    are kept, since a shadow taken into the albedo is wrong in every new pose."""
+    SHADOW_TOLERANCE where the point light carries most of the light: where the frames cannot
+    tell (a shadow that falls on the same skin in every frame that shows it explains them as well
+    as a darker albedo does), its own shadows are kept, since a shadow taken into the albedo is
+    wrong in every new pose. Under a dominant room light they must bring the renders nearer by
+    as much to pay for their cost."""
     decision = run.state.shadows
     if decision.decided or run.stage.kind is not SHADOWS_DECIDED_IN or run.state.step < run.stage.steps // 2:
         return
@@ -374,8 +381,9 @@ def _decide_shadows(problem, run, reporter):
     probe = np.unique(np.linspace(0, count - 1, min(count, SHADOW_PROBE_FRAMES)).round().astype(int))
     with torch.no_grad():
         without, with_shadows = (_probe_l1(problem, shadows, probe) for shadows in (False, True))
-    decision.on, decision.decided = bool(with_shadows < without * (1 + SHADOW_TOLERANCE)), True
     decision.ambient_at_decision = problem.avatar.ambient.item()
+    lean = SHADOW_TOLERANCE if decision.ambient_at_decision < SHADOW_DOMINANT_AMBIENT else -SHADOW_TOLERANCE
+    decision.on, decision.decided = bool(with_shadows < without * (1 + lean)), True
     decision.l1_without, decision.l1_with = without, with_shadows
     reporter.log(f"shadows auto: L1 in the masks of {len(probe)} fitted frames {without:.4f} without self-shadowing, "
                  f"{with_shadows:.4f} with -> {'on' if decision.on else 'off'} (fitted ambient ratio "
