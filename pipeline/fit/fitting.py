@@ -49,7 +49,7 @@ SHADOW_PROBE_FRAMES = 24
 # by more than SHADOW_TOLERANCE of the L1: on the phone-like clip's three fits (a window's soft light from one
 # side, ambient 0.23) the L1 with shadows was 0.989 / 0.992 / 1.008 of that without, and the albedo solved with
 # them 1.2-1.3 dB nearer the truth on each. Where the room's light dominates, a point light's shadows are a
-# small share of the shading and cost a shadow map at every shaded step (11% of a joint step): they must bring
+# small share of the shading and cost a shadow map at every shaded step (+16-25% a step): they must bring
 # the renders nearer by as much (the demo clip's uniform world, ambient 0.81: L1 and albedo alike either way)
 # (docs/fidelity.md, "Shadows decided with the albedo solved")
 SHADOW_TOLERANCE = 0.02
