@@ -235,7 +235,7 @@ def build_parser():
                      help="the room light (ambient and environment) held back where the hand itself is in its way, "
                           "between the fingers and in a closing palm: on, or off (default: every point sees the whole room, "
                           "HARP's light). On 3 seeds of two clips: frames and joints level, the albedo nearer the "
-                          "truth (a third on the demo), new poses up to 0.7 dB better; costs about 1 s per fitted "
+                          "truth (a third on the demo), new poses up to 0.7 dB better; costs about 0.5 s per fitted "
                           "frame (docs/fidelity.md)")
     fit.add_argument("--restart-lost-frames", choices=("on", "off"), default=None,
                      help="frames the alignment left off their silhouettes (a hand the detector turned over) started "
