@@ -115,7 +115,8 @@ def render_clip(settings, log=print):
     hand_collection = bpy.data.collections.new("hand")
     scene.collection.children.link(hand_collection)
     rig = build_hand_rig(data, betas, offsets, collection=hand_collection)
-    rig.mesh.data.materials.append(skin_material(albedo_path, appearance.roughness, identity.skin_tone))
+    rig.mesh.data.materials.append(skin_material(albedo_path, appearance.roughness, identity.skin_tone,
+                                                 subsurface=settings.subsurface, specular_level=settings.specular_level))
     light = setup_lighting(scene, settings.lighting, settings.background, target=[0.0, 0.0, distance],
                            seed=settings.seed)
     mask_scene = make_mask_scene(scene, hand_collection, scene.camera, settings.mask_engine)

@@ -17,9 +17,16 @@ def float_image(name, values):
     return image
 
 
-def skin_material(albedo_path, roughness, skin_tone, name="skin"):
+SUBSURFACE_WEIGHT = 0.6
+SPECULAR_LEVEL = 0.35   # Principled's Specular IOR Level at IOR 1.4: F0 0.019 (our lobe's level 0.24)
+
+
+def skin_material(albedo_path, roughness, skin_tone, name="skin", subsurface=SUBSURFACE_WEIGHT,
+                  specular_level=SPECULAR_LEVEL):
     """Principled skin shader reading the saved ground-truth albedo PNG (sRGB) and a roughness
-    map (H, W); subsurface radius in metres, shorter for darker skin."""
+    map (H, W); subsurface radius in metres, shorter for darker skin; `subsurface` its weight and
+    `specular_level` its Specular IOR Level (both 0: a matte skin our renderer's Lambertian model
+    draws alike)."""
     material = bpy.data.materials.new(name)
     nodes, links = material.node_tree.nodes, material.node_tree.links
     shader = nodes["Principled BSDF"]
@@ -33,10 +40,10 @@ def skin_material(albedo_path, roughness, skin_tone, name="skin"):
     links.new(albedo.outputs["Color"], shader.inputs["Base Color"])
     links.new(rough.outputs["Color"], shader.inputs["Roughness"])
     shader.subsurface_method = "BURLEY"
-    shader.inputs["Subsurface Weight"].default_value = 0.6
+    shader.inputs["Subsurface Weight"].default_value = subsurface
     shader.inputs["Subsurface Radius"].default_value = (1.0, 0.35, 0.2)
     shader.inputs["Subsurface Scale"].default_value = 0.002 * (1.0 - 0.5 * skin_tone)
-    shader.inputs["Specular IOR Level"].default_value = 0.35
+    shader.inputs["Specular IOR Level"].default_value = specular_level
     shader.inputs["IOR"].default_value = 1.4
     return material
 

@@ -33,6 +33,8 @@ class ClipSettings:
     seed: int = 0
     identity: int = 0
     skin_tone: float | None = None
+    subsurface: float = 0.6         # the skin shader's Subsurface Weight (0: none)
+    specular_level: float = 0.35    # its Specular IOR Level at IOR 1.4 (0: a matte, Lambertian-like skin)
     size: float | None = None
     betas: tuple | None = None
     features: tuple | None = None
@@ -80,6 +82,10 @@ def build_parser(prog="render.py"):
     add("--seed", type=int, default=0, help="seed of the random motion and background")
     add("--identity", type=int, default=0, help="seed of the person: shape, skin, features (default 0)")
     add("--skin-tone", type=float, help="0 very light .. 1 very dark (default: from --identity)")
+    add("--subsurface", type=float, default=0.6,
+        help="the skin's subsurface scattering weight, 0..1 (default 0.6; 0 with --specular-level 0: Lambertian skin)")
+    add("--specular-level", type=float, default=0.35,
+        help="the skin's Principled Specular IOR Level at IOR 1.4, 0..1 (default 0.35; 0: no sheen)")
     add("--size", type=float, help="hand size: the scale shape parameter, -3..3 (default: from --identity)")
     add("--betas", help=f"all {NUM_BETAS} shape parameters, comma-separated")
     add("--features", help=f"comma-separated subset of {','.join(FEATURES)}, or 'none' (default: from --identity)")
@@ -158,6 +164,10 @@ def check_settings(s: ClipSettings) -> None:
         fail(f"--distance must be within 0.1..100 m, got {s.distance}")
     if s.skin_tone is not None and not 0 <= s.skin_tone <= 1:
         fail(f"--skin-tone must be within 0..1, got {s.skin_tone}")
+    if not 0 <= s.subsurface <= 1:
+        fail(f"--subsurface must be within 0..1, got {s.subsurface}")
+    if not 0 <= s.specular_level <= 1:
+        fail(f"--specular-level must be within 0..1, got {s.specular_level}")
     if s.size is not None and not -3 <= s.size <= 3:
         fail(f"--size must be within -3..3 (the model's tested shape range), got {s.size}")
     if s.betas is not None:

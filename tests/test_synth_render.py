@@ -221,6 +221,8 @@ def test_cli_errors(tmp_path):
     (["--focal", "100", "--fov", "30"], "either --focal or --fov"),
     (["--elevation", "90"], "--elevation"),
     (["--skin-tone", "1.5"], "--skin-tone"),
+    (["--subsurface", "1.5"], "--subsurface"),
+    (["--specular-level", "-0.1"], "--specular-level"),
     (["--frames", "0"], "--frames"),
     (["--seconds", "0.01"], "less than one frame"),
     (["--width", "4"], "image size"),

@@ -87,7 +87,8 @@ def cycles_truth(sequence, framings):
             scene.collection.children.link(collection)
             rig = build_hand_rig(person.data, person.identity.betas, person.offsets, collection=collection)
             rig.mesh.data.materials.append(skin_material(albedo_path, person.appearance.roughness,
-                                                         person.identity.skin_tone))
+                                                         person.identity.skin_tone, subsurface=local.subsurface,
+                                                         specular_level=local.specular_level))
             setup_lighting(scene, local.lighting, local.background, target=[0.0, 0.0, frame.distance], seed=local.seed)
             mask_scene = make_mask_scene(scene, collection, scene.camera, local.mask_engine)
             rig.set_pose(frame.pose[0].double().numpy(), frame.global_orient[0].double().numpy(),
