@@ -43,6 +43,7 @@ from pipeline.handmodel.lbs import HandModel  # noqa: E402
 from pipeline.render.renderer import Appearance  # noqa: E402
 
 PICTURE_POSES = ("spread", "thumbs_up", "random1")
+PICTURE_SIZE = 192      # pixels per panel
 
 
 def tone_boundary_distance(truth, visible):
@@ -79,7 +80,8 @@ def picture(fit, sequence, scale, path):
         row = []
         for azimuth, elevation in VIEWS.values():
             (true_rgb, _), (worn_rgb, _) = render_posed([(truth_model, Appearance(truth.albedo)), (truth_model, scaled)],
-                                                        truth_model, poses[name], azimuth, elevation, linear=linear)
+                                                        truth_model, poses[name], azimuth, elevation, size=PICTURE_SIZE,
+                                                        linear=linear)
             a, b = true_rgb[0].numpy(), worn_rgb[0].numpy()
             error = np.clip(np.abs(a - b).mean(-1) * 4, 0, 1)
             heat = cv2.applyColorMap(np.uint8(error * 255), cv2.COLORMAP_INFERNO)[..., ::-1] / 255
