@@ -1,0 +1,93 @@
+"""Benchmark: the poses polished against the solved albedo, on a finished fit.
+
+    .venv/bin/python benchmarks/bench_albedo_pose_polish.py FIT SEQ OUT [--steps 150] [--move-shape]
+
+The fit's work after the stages done again on its final state (fitting._after_the_stages: the
+albedo and room light solved from the working frames, then the albedo alone from the frames at
+`solve_resolution`, then the fill), with `--steps` joint-stage steps (stage_run.StageRun, the
+fit's own energy and rates) between the first solve and a second one: poses, light and exposure
+move, the solved albedo and normal map stay (and the shape, unless --move-shape). The fit's last
+pose steps ran against the albedo its gradient steps had made, blurrier than the solved one; these
+see the solved albedo's edges. `--steps 0`: the work after the stages done again, the reference.
+The avatar (the fit folder with the new albedo.png) goes to OUT and is scored against the
+synthetic SEQ's true hand (evaluate/fidelity.py); one JSON line. The figures of docs/fidelity.md
+("The poses polished against the solved albedo") come from this script.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))   # albedo_ceiling
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from albedo_ceiling import problem_at  # noqa: E402
+from pipeline.evaluate.fidelity import evaluate_fidelity  # noqa: E402
+from pipeline.fit.albedo_solve import decided_texels, solve_avatar_albedo  # noqa: E402
+from pipeline.fit.checkpoint import FitState  # noqa: E402
+from pipeline.fit.schedule import Schedule, StageKind, StageSpec  # noqa: E402
+from pipeline.fit.stage_run import StageRun  # noqa: E402
+from pipeline.fit.texture_fill import fill_avatar_albedo  # noqa: E402
+from pipeline.formats import avatar_folder as av  # noqa: E402
+from pipeline.formats.png_file import write_png  # noqa: E402
+
+SHAPE = ("betas", "displacement")
+
+
+def polished(fit, sequence, steps, move_shape=False, seed=0):
+    """The fit's avatar after the work after the stages with `steps` polishing steps; seconds."""
+    problem, shadows = problem_at(fit, sequence, None)
+    started = time.perf_counter()
+    problem.avatar.measure_occlusion(exact=True)
+    solve_avatar_albedo(problem, shadows)
+    if steps:
+        kept = problem.frozen
+        problem.frozen = tuple(kept) + ("albedo", "normal_map") + (() if move_shape else SHAPE)
+        stage = StageSpec(StageKind.JOINT, steps)
+        run = StageRun(problem, stage, FitState.fresh(Schedule((stage,)), "on" if shadows else "off"),
+                       torch.Generator().manual_seed(seed))
+        while run.has_work and not run.finished:
+            run.step()
+        problem.frozen = kept
+        problem.avatar.measure_occlusion(exact=True)
+        solve_avatar_albedo(problem, shadows)
+    seen = problem.at_resolution(problem.settings.solve_resolution)
+    if seen is not problem:
+        solve_avatar_albedo(seen, shadows, solve_environment=False)
+    fill_avatar_albedo(problem.avatar, decided_texels(seen))
+    return problem.avatar, time.perf_counter() - started
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("fit", type=Path)
+    parser.add_argument("sequence", type=Path)
+    parser.add_argument("out", type=Path, help="where the polished avatar folder is written")
+    parser.add_argument("--steps", type=int, default=150)
+    parser.add_argument("--move-shape", action="store_true", help="let the shape and displacements move too")
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    avatar, seconds = polished(args.fit, args.sequence, args.steps, args.move_shape)
+    shutil.copytree(args.fit, args.out, dirs_exist_ok=True)
+    albedo = avatar.albedo.detach().clamp(0, 1).permute(1, 2, 0).cpu().numpy()
+    write_png(args.out / av.ALBEDO_FILE, np.round(albedo * 255).astype(np.uint8))
+    result = evaluate_fidelity(args.out, args.sequence)
+    texture, poses = result["texture"], result["new_poses"]
+    print(json.dumps({"fit": str(args.fit), "steps": args.steps, "move_shape": args.move_shape,
+                      "seconds": round(seconds, 1),
+                      "new_poses_overlap": round(poses["psnr_overlap_mean"], 2),
+                      "true_shape_wearing_the_albedo": round(poses["fitted_albedo_alone"]["psnr_overlap_mean"], 2),
+                      "albedo_psnr_scaled": round(texture["psnr_scaled"], 2), "albedo_mae_scaled": round(texture["mae_scaled"], 4),
+                      "contrast": round(texture["tones"]["contrast"], 3), "sharpness": round(texture["sharpness_ratio"], 3)}))
+
+
+if __name__ == "__main__":
+    main()
