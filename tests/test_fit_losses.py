@@ -134,9 +134,17 @@ def test_the_problem_erodes_every_mask_once_as_the_photometric_term_would():
     frame, and the term given it is the term."""
     generator = torch.Generator().manual_seed(1)
     masks = (torch.rand(21, 24, 30, 1, generator=generator) > 0.3).double()
-    stand_in = types.SimpleNamespace(clip=types.SimpleNamespace(masks=masks))
+    stand_in = types.SimpleNamespace(clip=types.SimpleNamespace(masks=masks, valid=None))
+    stand_in._eroded_masks = lambda pixels: FitProblem._eroded_masks(stand_in, pixels)
     inside = FitProblem.photometric_inside.func(stand_in)
     assert inside.dtype == torch.bool and torch.equal(inside, losses.eroded_mask(masks, 2) > 0.5)
+    # the albedo solve reads one pixel nearer the edge: the mask eroded by 1, more pixels than the term's
+    stand_in.photometric_inside, stand_in.albedo_solve_inside = inside, FitProblem.albedo_solve_inside.func(stand_in)
+    assert torch.equal(stand_in.albedo_solve_inside, losses.eroded_mask(masks, 1) > 0.5)
+    solved = FitProblem.compared_pixels(stand_in, torch.tensor([3, 17]), albedo_solve=True)
+    compared = FitProblem.compared_pixels(stand_in, torch.tensor([3, 17]))
+    assert torch.equal(compared, inside[[3, 17], ..., 0]) and bool((solved | ~compared).all())
+    assert int(solved.sum()) > int(compared.sum())
     rendered, image = torch.rand(2, 21, 24, 30, 3, generator=generator, dtype=torch.float64)
     batch = torch.tensor([3, 17, 20])
     assert losses.photometric_loss(rendered[batch], image[batch], masks[batch], inside=inside[batch]).item() == \

@@ -7,7 +7,8 @@ clip, evaluate/fidelity.py). Once the geometry and the light are final, the albe
 explains the frames is a linear least-squares problem, and it is solved directly; the
 appearance stage's albedo stays where the frames say too little.
 
-Every pixel of a fitted frame on the visible surface inside the eroded mask gives one equation
+Every pixel of a fitted frame on the visible surface inside the eroded mask (eroded by
+losses.ALBEDO_SOLVE_EROSION, a pixel less than the photometric term) gives one equation
 per channel: I = S * bilinear(albedo, uv), I the frame's colour, S what the renderer shows there
 for an albedo of 1 (light, ambient ratio, shadows, normal map, exposure gain), bilinear() the
 renderer's own texture lookup (render/texture.py) at the pixel's UV: four texels and their
@@ -270,7 +271,7 @@ def _observations(problem, shadows, batch_size, size, frames=None):
             if occluded:   # the harmonics' light less what the hand keeps from the point (render/occlusion.py)
                 basis = basis - images["lost_light"][..., 1:]
             shading = base + gain * (basis @ environment)
-        usable = problem.colour_pixels(batch) & (images["alpha"][..., 0] > 0.5)   # as the photometric term
+        usable = problem.colour_pixels(batch, albedo_solve=True) & (images["alpha"][..., 0] > 0.5)
         drawn = linear_to_srgb(shading) if linear else shading   # an albedo of 1's values in the frame
         usable = usable & (drawn.min(-1).values > MIN_SHADING)
         if specular is not None:
@@ -309,8 +310,8 @@ def _facing(normals, K):
 @torch.no_grad()
 def decided_texels(problem, batch_size=SOLVE_BATCH):
     """(T, T) bool: the texels of the avatar's albedo that its frames decide, those the pixels the
-    fit compares (FitProblem.compared_pixels) give at least MIN_COVERAGE of bilinear weight: the
-    texels the solve solves. Any other texel holds what the appearance stage left (its starting
+    solve reads (FitProblem.compared_pixels with albedo_solve) give at least MIN_COVERAGE of
+    bilinear weight: the texels the solve solves. Any other texel holds what the appearance stage left (its starting
     colour where no compared pixel reached it: a finger's side, seen edge-on at the silhouette),
     and texture_fill.py fills it."""
     avatar, clip = problem.avatar, problem.clip
@@ -320,7 +321,7 @@ def decided_texels(problem, batch_size=SOLVE_BATCH):
         vertices, _ = avatar.posed(batch)
         images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=("uv", "alpha"),
                         antialiased=False)
-        usable = problem.compared_pixels(batch) & (images["alpha"][..., 0] > 0.5)
+        usable = problem.compared_pixels(batch, albedo_solve=True) & (images["alpha"][..., 0] > 0.5)
         rows, columns, weights = bilinear_texels(images["uv"][usable], size)
         coverage.index_add_(0, (rows * size + columns).flatten(), weights.flatten().to(coverage.dtype))
     return coverage.view(size, size) >= MIN_COVERAGE

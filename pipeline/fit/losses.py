@@ -77,6 +77,10 @@ def eroded_mask(mask, pixels=2):
 
 
 PHOTOMETRIC_EROSION = 2    # pixels
+# the albedo solve reads one pixel nearer the mask's edge: where a finger's side turns away, those
+# pixels are the only ones that show the skin where the palm's tone meets the back's (phone-like
+# clip, 3 seeds: new poses +0.4 dB, the albedo +0.5 dB; docs/fidelity.md)
+ALBEDO_SOLVE_EROSION = 1   # pixels
 
 
 def photometric_loss(rendered, image, mask, erosion=PHOTOMETRIC_EROSION, inside=None):

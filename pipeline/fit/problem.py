@@ -25,7 +25,7 @@ from ..render.rasterize import project
 from .avatar import MATERIAL, Avatar
 from .clip_data import ClipData, load_clip, saturated
 from .energy_terms import ENERGY_TERMS, is_on
-from .losses import PHOTOMETRIC_EROSION, eroded_mask
+from .losses import ALBEDO_SOLVE_EROSION, PHOTOMETRIC_EROSION, eroded_mask
 from .mask_cuts import cut_regions
 from .perceptual import perceptual_term
 from .settings import FitSettings
@@ -101,15 +101,25 @@ class FitProblem:
     def photometric_inside(self) -> torch.Tensor:
         """(F, H, W, 1) bool: each frame's mask eroded as the photometric term compares it,
         computed once (per step it took as long as the rest of the term)."""
-        masks = self.clip.masks
-        return torch.cat([eroded_mask(masks[start:start + 16], PHOTOMETRIC_EROSION) > 0.5
-                          for start in range(0, len(masks), 16)])
+        return self._eroded_masks(PHOTOMETRIC_EROSION)
 
-    def compared_pixels(self, frames=None) -> torch.Tensor:
+    @functools.cached_property
+    def albedo_solve_inside(self) -> torch.Tensor:
+        """(F, H, W, 1) bool: each frame's mask eroded as the albedo solve reads it (less than the
+        photometric term), computed once."""
+        return self._eroded_masks(ALBEDO_SOLVE_EROSION)
+
+    def _eroded_masks(self, pixels):
+        masks = self.clip.masks
+        return torch.cat([eroded_mask(masks[start:start + 16], pixels) > 0.5 for start in range(0, len(masks), 16)])
+
+    def compared_pixels(self, frames=None, albedo_solve=False) -> torch.Tensor:
         """(F, H, W) bool: the pixels whose colour the fit compares in each frame (or in `frames`):
-        inside the photometric term's eroded mask and recorded by the camera. The albedo solve
-        reads these, and a texel no such pixel shows counts as unseen (texture_fill.py)."""
-        inside = self.photometric_inside[..., 0] if frames is None else self.photometric_inside[frames][..., 0]
+        inside the photometric term's eroded mask (with `albedo_solve`, the albedo solve's, a pixel
+        nearer the edge) and recorded by the camera. The albedo solve reads these, and a texel no
+        such pixel shows counts as unseen (texture_fill.py)."""
+        eroded = self.albedo_solve_inside if albedo_solve else self.photometric_inside
+        inside = eroded[..., 0] if frames is None else eroded[frames][..., 0]
         return inside if self.clip.valid is None else inside & (self.clip.valid[..., 0] > 0.5)
 
     @functools.cached_property
@@ -119,11 +129,11 @@ class FitProblem:
         clipped = saturated(self.clip.images)
         return clipped if bool(clipped.any()) else None
 
-    def colour_pixels(self, frames) -> torch.Tensor:
-        """(B, H, W) bool: the compared pixels of `frames` whose colour measures the light, those with
-        no channel clipped at white (a clipped one says only "at least white"). The albedo solve and
-        the light search read these."""
-        pixels = self.compared_pixels(frames)
+    def colour_pixels(self, frames, albedo_solve=False) -> torch.Tensor:
+        """(B, H, W) bool: the compared pixels of `frames` (compared_pixels) whose colour measures the
+        light, those with no channel clipped at white (a clipped one says only "at least white"). The
+        albedo solve and the light search read these."""
+        pixels = self.compared_pixels(frames, albedo_solve)
         return pixels if self.saturated is None else pixels & ~self.saturated[frames].any(-1)
 
 
