@@ -79,7 +79,7 @@ def eroded_mask(mask, pixels=2):
 PHOTOMETRIC_EROSION = 2    # pixels
 # the albedo solve reads one pixel nearer the mask's edge: where a finger's side turns away, those
 # pixels are the only ones that show the skin where the palm's tone meets the back's (phone-like
-# clip, 3 seeds: new poses +0.4 dB, the albedo +0.5 dB; docs/fidelity.md)
+# clip: new poses +0.4-0.7 dB, held out +0.4-0.6 dB; docs/fidelity.md)
 ALBEDO_SOLVE_EROSION = 1   # pixels
 
 
