@@ -32,7 +32,7 @@ import torch  # noqa: E402
 
 from albedo_ceiling import problem_at  # noqa: E402
 from pipeline.avatar_render import load_avatar  # noqa: E402
-from pipeline.evaluate.albedo import albedo_truth, best_scale  # noqa: E402
+from pipeline.evaluate.albedo import albedo_truth, best_scale, tone_cut  # noqa: E402
 from pipeline.evaluate.fidelity import VIEWS, evaluate_fidelity, novel_poses, render_posed, true_hand  # noqa: E402
 from pipeline.fit.albedo_solve import decided_texels  # noqa: E402
 from pipeline.formats import avatar_folder as av  # noqa: E402
@@ -48,10 +48,9 @@ PICTURE_SIZE = 192      # pixels per panel
 
 def tone_boundary_distance(truth, visible):
     """(T, T) texels from each texel to the nearest boundary between the truth's two tones (split
-    half-way between the 10th and 90th percentiles of the visible texels' brightness)."""
+    at evaluate/albedo.tone_cut of the visible texels' brightness, as the fidelity measure splits them)."""
     brightness = truth.mean(-1)
-    cut = 0.5 * (np.percentile(brightness[visible], 10) + np.percentile(brightness[visible], 90))
-    dark = (brightness < cut).astype(np.uint8)
+    dark = (brightness < tone_cut(brightness[visible])).astype(np.uint8)
     boundary = cv2.morphologyEx(dark, cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) > 0
     return cv2.distanceTransform((~boundary).astype(np.uint8), cv2.DIST_L2, 3)
 

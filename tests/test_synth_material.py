@@ -11,7 +11,6 @@ pytestmark = pytest.mark.blender
 
 from pipeline.formats.colour_model import srgb_to_linear  # noqa: E402
 from synth.material import SPECULAR_LEVEL, SUBSURFACE_WEIGHT, skin_material  # noqa: E402
-from synth.material import float_image  # noqa: E402
 
 TONES = {"dark": (0.33, 0.21, 0.15), "light": (0.85, 0.66, 0.56)}   # sRGB base colours, a back and a palm
 

@@ -60,17 +60,23 @@ MIN_TONE_SHARE = 0.05     # of the visible texels each tone needs for tone_contr
 MIN_TONE_STEP = 1.5       # and how much brighter the light tone must be than the dark one (medians)
 
 
+def tone_cut(brightness):
+    """The brightness that splits skin of two tones (light palm, dark back): half-way between the
+    10th and 90th percentiles of `brightness` (of the texels compared)."""
+    return (np.percentile(brightness, 10) + np.percentile(brightness, 90)) / 2
+
+
 def tone_contrast(fitted, truth):
     """How the fitted albedo gets the hand's light and dark skin (a palm and the back of a dark
     hand) against each other, from fitted and true colours (N, 3) of the same texels: the truth's
-    texels split at the brightness half-way between its 10th and 90th percentiles; per tone the
+    texels split at tone_cut of their brightness; per tone the
     median of fitted over true brightness (mean of the channels); `contrast` the dark tone's over
     the light tone's (1: right; light and albedo trade only a common factor, so this is the
     fit's error); `psnr_scaled_per_tone` the PSNR after the best per-channel scale of each tone
     (what the right contrast would give). None for skin of one tone: either tone under
     MIN_TONE_SHARE of the texels, or the light one less than MIN_TONE_STEP times as bright."""
     brightness = truth.mean(1)
-    dark = brightness < (np.percentile(brightness, 10) + np.percentile(brightness, 90)) / 2
+    dark = brightness < tone_cut(brightness)
     if min(dark.mean(), 1 - dark.mean()) < MIN_TONE_SHARE or \
             np.median(brightness[~dark]) < MIN_TONE_STEP * np.median(brightness[dark]):
         return None
