@@ -11,8 +11,9 @@ solve resolution) or the texture fill made it. Then the new-pose figures
 brightness, put into one region at a time: the band the clip showed, the rest it showed, the
 texels it never showed. How far each moves the new-pose PSNR says how much that region costs.
 --picture: three new poses from the palm and the back: the true hand, the true shape wearing
-the fitted albedo (scaled), their difference x4. One JSON line; docs/fidelity.md ("What limits
-new poses: the tone boundary") comes from this script.
+the fitted albedo (scaled), their difference x4. Also the albedo's brightness error (after the
+scale) by signed distance to the tone boundary (signed_profile). One JSON line; docs/fidelity.md
+("What limits new poses: the tone boundary") comes from this script.
 """
 from __future__ import annotations
 
@@ -53,6 +54,26 @@ def tone_boundary_distance(truth, visible):
     dark = (brightness < tone_cut(brightness[visible])).astype(np.uint8)
     boundary = cv2.morphologyEx(dark, cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) > 0
     return cv2.distanceTransform((~boundary).astype(np.uint8), cv2.DIST_L2, 3)
+
+
+def signed_profile(fitted, truth, visible, reach=5):
+    """{signed texels from the tone boundary (negative on the dark side): the mean brightness of
+    the truth, of the fitted albedo, and their difference} over the visible texels, out to
+    `reach` texels either side (farther texels counted at the last step). The difference's shape
+    tells a boundary blurred (a bump on each side that fades with the distance) from the two tones'
+    contrast (a level offset on each side) and from a boundary in the wrong place (one side only)."""
+    brightness_true, brightness_fitted = truth.mean(-1), fitted.mean(-1)
+    dark = brightness_true < tone_cut(brightness_true[visible])
+    distance = tone_boundary_distance(truth, visible)
+    signed = np.clip(np.where(dark, -np.ceil(distance), np.floor(distance)), -reach, reach)
+    profile = {}
+    for step in range(-reach, reach + 1):
+        region = visible & (signed == step)
+        if region.sum() >= 20:
+            profile[step] = {"texels": int(region.sum()), "truth": round(float(brightness_true[region].mean()), 4),
+                             "fitted": round(float(brightness_fitted[region].mean()), 4),
+                             "difference": round(float((brightness_fitted - brightness_true)[region].mean()), 4)}
+    return profile
 
 
 def new_pose_figures(fit, sequence, albedo):
@@ -117,6 +138,7 @@ def main():
     true_at_fit_brightness = shown / scale
     figures = {"fit": str(args.fit), "band_texels": args.band, "albedo_psnr_scaled":
                round(float(10 * np.log10(1 / squared[visible].mean())), 2), "error_split": split,
+               "signed_profile": signed_profile(fitted * scale, shown, visible),
                "new_poses": {"as_fitted": new_pose_figures(args.fit, args.sequence, fitted)}}
     for name, region in (("true_in_the_band_shown", band & visible), ("true_in_the_rest_shown", ~band & visible),
                          ("true_where_never_shown", ~visible)):

@@ -74,9 +74,9 @@ def test_a_finer_solve_reads_the_clips_own_frames_with_the_light_held(tiny_clip,
     calls = []
     original = fitting.solve_avatar_albedo
 
-    def recording(problem, shadows, solve_environment=True):
+    def recording(problem, shadows, solve_environment=True, frames=None):
         before = problem.avatar.environment.detach().clone()
-        figures = original(problem, shadows, solve_environment)
+        figures = original(problem, shadows, solve_environment, frames)
         held = torch.equal(before, problem.avatar.environment)
         calls.append((tuple(problem.clip.images.shape[1:3]), solve_environment, held))
         return figures

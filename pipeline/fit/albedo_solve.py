@@ -308,16 +308,18 @@ def _facing(normals, K):
 
 
 @torch.no_grad()
-def decided_texels(problem, batch_size=SOLVE_BATCH):
-    """(T, T) bool: the texels of the avatar's albedo that its frames decide, those the pixels the
-    solve reads (FitProblem.compared_pixels with albedo_solve) give at least MIN_COVERAGE of
-    bilinear weight: the texels the solve solves. Any other texel holds what the appearance stage left (its starting
+def decided_texels(problem, batch_size=SOLVE_BATCH, frames=None):
+    """(T, T) bool: the texels of the avatar's albedo that its frames decide (of `frames`, indices
+    into the fitted frames, default all), those the pixels the solve reads
+    (FitProblem.compared_pixels with albedo_solve) give at least MIN_COVERAGE of bilinear weight:
+    the texels the solve solves. Any other texel holds what the appearance stage left (its starting
     colour where no compared pixel reached it: a finger's side, seen edge-on at the silhouette),
     and texture_fill.py fills it."""
     avatar, clip = problem.avatar, problem.clip
     size = avatar.albedo.shape[-1]
     coverage = torch.zeros(size * size, dtype=avatar.albedo.dtype, device=avatar.albedo.device)
-    for batch in torch.arange(len(problem.frames), device=avatar.albedo.device).split(batch_size):
+    chosen = torch.arange(len(problem.frames)) if frames is None else torch.as_tensor(frames, dtype=torch.long)
+    for batch in chosen.to(avatar.albedo.device).split(batch_size):
         vertices, _ = avatar.posed(batch)
         images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=("uv", "alpha"),
                         antialiased=False)
@@ -456,18 +458,19 @@ def _conjugate_gradients(apply, rhs, x, inverse_diagonal, iterations, tolerance=
 
 
 @torch.no_grad()
-def solve_avatar_albedo(problem, shadows, solve_environment=True) -> dict:
+def solve_avatar_albedo(problem, shadows, solve_environment=True, frames=None) -> dict:
     """Replace the avatar's albedo (and environment light, when it has one and `solve_environment`)
     by the solved ones where the frames decide them (in place); returns the share of the UV charts
     solved, the mean change there, and the environment's relative strength before and after.
     With `solve_environment` False the light is held as it stands and the albedo alone is solved
-    (the finer pass of fitting._after_the_stages)."""
+    (the finer pass of fitting._after_the_stages). `frames` (indices into the fitted frames,
+    default all): the frames read."""
     avatar = problem.avatar
     before = avatar.light().environment
     light_solved = before is not None and solve_environment
     before = before.detach().clone() if light_solved else None
     albedo, solved, environment = _solved(problem, shadows, SOLVE_BATCH, avatar.albedo.detach().clamp(0, 1),
-                                          solve_environment)
+                                          solve_environment, frames)
     solved = solved & (problem.uv_mask.to(solved.device) > 0)
     change = (albedo - avatar.albedo.clamp(0, 1)).abs().mean(0)[solved]
     avatar.albedo.copy_(torch.where(solved[None], albedo, avatar.albedo))

@@ -65,6 +65,7 @@ class FitState:
     measure_seconds: float = 0.0        # time observers (the anytime curve) took, not fit time
     texture_fill: dict | None = None    # texture_fill.fill_avatar_albedo's figures, once it has run
     albedo_solve: dict | None = None    # albedo_solve.solve_avatar_albedo's figures, once it has run
+    solve_left_out: dict | None = None  # lost_frames.frames_off_their_silhouettes: frames the albedo solve leaves out
     validation: list = dataclasses.field(default_factory=list)   # validation.Validator's checks, in order
     best: dict | None = None            # the best check's psnr, stage and step (its avatar: Checkpoint.best_avatar)
     environment: dict | None = None     # `auto` environment light, once decided: on, relative_strength

@@ -27,7 +27,7 @@ from .budget import BudgetKeeper
 from .estimate import FitEstimate, active_stages, measure_step_costs
 from .frames import held_out_frames, select_frames, validation_frames
 from .light_search import search_light
-from .lost_frames import LOST_IOU, anchor_restarted, restart_lost_frames
+from .lost_frames import LOST_IOU, anchor_restarted, frames_off_their_silhouettes, restart_lost_frames
 from .outputs import masked_l1, write_outputs
 from .problem import FitError, FitProblem, build_problem
 from .progress import Progress, duration_text
@@ -261,7 +261,8 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
     """The avatar back at its best validation check (when the last scored below it), the albedo
     solved from the frames (with the environment light, at the working size), the light's `auto`
     decisions, the albedo alone solved again from finer frames where `solve_resolution` asks for
-    them, then the unseen texels filled (each once: a resumed fit skips what has run)."""
+    them, then the unseen texels filled (each once: a resumed fit skips what has run). Frames the
+    final surface leaves off their silhouettes are left out of the solves (_painting_frames)."""
     if validator is not None and state.albedo_solve is None and state.texture_fill is None:
         best = restore_best(validator, state)
         if best is not None:
@@ -272,15 +273,19 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
     with timed("occlusion"):
         problem.avatar.measure_occlusion(exact=True)   # at the final poses, in a resumed fit too
     solving = problem.settings.solve_albedo and not problem.known_appearance
+    painting = None
+    if solving and (state.albedo_solve is None or state.texture_fill is None):
+        with timed("albedo_solve"):
+            painting = _painting_frames(problem, state, reporter)
     if state.albedo_solve is None and solving:
         with timed("albedo_solve"):
-            state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on)
+            state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on, frames=painting)
         reporter.log(f"albedo solved from the frames on the final geometry and light: "
                      f"{state.albedo_solve['solved_fraction']:.0%} of the texels "
                      f"(mean change {state.albedo_solve['mean_change']:.3f})"
                      + (" with the environment light" if "environment_strength" in state.albedo_solve else ""))
         with timed("light_decisions"):
-            _decide_light(problem, state, reporter, solved=problem)
+            _decide_light(problem, state, reporter, solved=problem, frames=painting)
         save()
     with timed("light_decisions"):
         _decide_light(problem, state, reporter, solved=None)     # without an albedo solve: as the stages left it
@@ -290,7 +295,7 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
             seen = problem.at_resolution(problem.settings.solve_resolution)
         if seen is not problem and FINER_SOLVE not in state.albedo_solve:
             with timed("albedo_solve"):
-                finer = solve_avatar_albedo(seen, state.shadows.on, solve_environment=False)
+                finer = solve_avatar_albedo(seen, state.shadows.on, solve_environment=False, frames=painting)
             state.albedo_solve = {**state.albedo_solve, FINER_SOLVE: finer}
             reporter.log(f"albedo solved again from the frames at {max(seen.clip.height, seen.clip.width)} px, "
                          f"the light held: {finer['solved_fraction']:.0%} of the texels "
@@ -298,7 +303,7 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
             save()
     if state.texture_fill is None and not problem.known_appearance:
         with timed("texture_fill"):
-            state.texture_fill = fill_avatar_albedo(problem.avatar, decided_texels(seen))
+            state.texture_fill = fill_avatar_albedo(problem.avatar, decided_texels(seen, frames=painting))
         reporter.log(f"albedo: {state.texture_fill['unseen_fraction']:.0%} of the texels not decided by the frames "
                      f"(never seen, or only at the silhouette), filled through the surface "
                      f"(seam contrast {state.texture_fill['seam_contrast_before']:.3f} -> "
@@ -404,15 +409,33 @@ def _probe_l1(problem, shadows, probe):
         albedo.copy_(kept)
 
 
-def _decide_light(problem, state, reporter, solved):
+def _decide_light(problem, state, reporter, solved, frames=None):
     """The `auto` environment light and specular lobe, each decided once after the stages (after
     the albedo solve, when `solved` is the problem it read: it solves the environment with the albedo
-    and takes the lobe's sheen off the frames); the albedo is solved again from `solved`, once,
-    without what they switch off."""
+    and takes the lobe's sheen off the frames); the albedo is solved again from `solved` (its
+    `frames`), once, without what they switch off."""
     switched_off = _decide_environment(problem, state, reporter)
     switched_off = _decide_specular(problem, state, reporter) or switched_off
     if switched_off and solved is not None:
-        state.albedo_solve = solve_avatar_albedo(solved, state.shadows.on)
+        state.albedo_solve = solve_avatar_albedo(solved, state.shadows.on, frames=frames)
+
+
+def _painting_frames(problem, state, reporter):
+    """Indices of the fitted frames the albedo solves and the fill's decided texels read: every one
+    but those the final surface leaves off their silhouettes (lost_frames.py: a hand turned over
+    or left beside its mask paints its colours onto the wrong texels), found once (a resumed fit
+    reads them from the state) and said in one line; None: every frame."""
+    if state.solve_left_out is None:
+        state.solve_left_out = frames_off_their_silhouettes(problem)
+        if state.solve_left_out["frames"]:
+            listed = ", ".join(f"{frame} ({iou:.2f})" for frame, iou in
+                               zip(state.solve_left_out["frames"], state.solve_left_out["ious"]))
+            reporter.log(f"albedo solve: frames the fit left off their silhouettes (IoU under {LOST_IOU}) "
+                         f"left out: {listed}")
+    left_out = set(state.solve_left_out["indices"])
+    if not left_out:
+        return None
+    return [index for index in range(len(problem.frames)) if index not in left_out]
 
 
 def _decide_environment(problem, state, reporter) -> bool:

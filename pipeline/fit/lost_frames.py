@@ -9,6 +9,10 @@ below LOST_IOU, and at least LOST_MARGIN below the clip's median, gets the pose 
 well-aligned neighbours interpolate (pose_interpolation.py); where that covers its mask better
 by at least GAIN, it is kept, and the frame's keypoint anchor moves to the new pose's keypoints
 (else the anchor would pull the hand back over). The later stages refine it as any other frame.
+
+A frame still off its silhouette after the stages (restarted or not) paints its colours onto the
+wrong texels: the albedo solve leaves out the frames that `frames_off_their_silhouettes` finds
+by the same rule, on the final surface (fitting._after_the_stages).
 """
 from __future__ import annotations
 
@@ -29,16 +33,42 @@ POSE = ("global_orient", "transl", "pose")
 def alignment_ious(problem, frames=None, batch_size=8) -> torch.Tensor:
     """(F,) the silhouette IoU of the alignment's mesh (the unsubdivided model) against each
     fitted frame's mask, or of `frames` (indices into the fitted frames)."""
+    return silhouette_ious(problem, frames, batch_size, coarse=True)
+
+
+@torch.no_grad()
+def silhouette_ious(problem, frames=None, batch_size=8, coarse=False) -> torch.Tensor:
+    """(F,) the silhouette IoU of the avatar's surface (displaced; the unsubdivided model's with
+    `coarse`) against each fitted frame's mask, or of `frames` (indices into the fitted frames)."""
     avatar, clip = problem.avatar, problem.clip
     chosen = torch.arange(len(problem.frames), device=clip.masks.device) if frames is None else \
         torch.as_tensor(frames, dtype=torch.long, device=clip.masks.device)
     ious = []
     for batch in chosen.split(batch_size):
-        vertices, _ = avatar.posed_coarse(batch)
-        alpha = render(vertices, avatar.coarse_mesh, clip.K[batch], clip.height, clip.width, outputs=("alpha",),
-                       antialiased=False)["alpha"]
+        vertices, _ = avatar.posed_coarse(batch) if coarse else avatar.posed(batch)
+        alpha = render(vertices, avatar.coarse_mesh if coarse else avatar.mesh, clip.K[batch], clip.height,
+                       clip.width, outputs=("alpha",), antialiased=False)["alpha"]
         ious.append(metrics.silhouette_iou(alpha, clip.masks[batch]))
     return torch.cat(ious) if ious else torch.zeros(0, dtype=torch.float64)
+
+
+def lost(ious: np.ndarray) -> np.ndarray:
+    """Indices of the frames taken as lost among frames of silhouette IoUs `ious`: under
+    LOST_IOU and at least LOST_MARGIN under their median (none of fewer than 3 frames)."""
+    ious = np.asarray(ious, dtype=np.float64)
+    if len(ious) < 3:
+        return np.zeros(0, dtype=np.int64)
+    return np.flatnonzero((ious < LOST_IOU) & (ious < np.median(ious) - LOST_MARGIN))
+
+
+@torch.no_grad()
+def frames_off_their_silhouettes(problem) -> dict:
+    """The fitted frames the avatar's final surface leaves off their silhouettes (the rule of
+    `lost`): {"indices": into the fitted frames, "frames": the sequence frames, "ious": theirs}."""
+    ious = silhouette_ious(problem).cpu().numpy()
+    off = lost(ious)
+    return {"indices": [int(i) for i in off], "frames": [int(problem.frames[i]) for i in off],
+            "ious": [round(float(ious[i]), 4) for i in off]}
 
 
 @torch.no_grad()
@@ -48,29 +78,27 @@ def restart_lost_frames(problem) -> dict:
     frames found lost}."""
     avatar = problem.avatar
     ious = alignment_ious(problem).cpu().numpy()
-    if len(ious) < 3:
-        return {"frames": [], "iou_before": [], "iou_after": [], "tried": []}
-    lost = np.flatnonzero((ious < LOST_IOU) & (ious < np.median(ious) - LOST_MARGIN))
-    kept = np.setdiff1d(np.arange(len(ious)), lost)
+    off = lost(ious)
+    kept = np.setdiff1d(np.arange(len(ious)), off)
     result = {"frames": [], "iou_before": [], "iou_after": [],
-              "tried": [int(problem.frames[i]) for i in lost]}
-    if len(lost) == 0 or len(kept) == 0:
+              "tried": [int(problem.frames[i]) for i in off]}
+    if len(off) == 0 or len(kept) == 0:
         return result
     sequence_frames = np.asarray(problem.frames)
     good = {name: getattr(avatar, name)[torch.as_tensor(kept, device=avatar.pose.device)] for name in POSE}
-    start = interpolated_poses(good, sequence_frames[kept], sequence_frames[lost])
-    index = torch.as_tensor(lost, device=avatar.pose.device)
+    start = interpolated_poses(good, sequence_frames[kept], sequence_frames[off])
+    index = torch.as_tensor(off, device=avatar.pose.device)
     before = {name: getattr(avatar, name)[index].clone() for name in POSE}
     for name in POSE:
         getattr(avatar, name)[index] = start[name].to(getattr(avatar, name).dtype)
-    after = alignment_ious(problem, lost).cpu().numpy()
-    better = after >= ious[lost] + GAIN
+    after = alignment_ious(problem, off).cpu().numpy()
+    better = after >= ious[off] + GAIN
     kept_own = torch.as_tensor(~better, device=index.device)
     for name in POSE:       # where the neighbours' pose is no better, the frame keeps its own
         getattr(avatar, name)[index[kept_own]] = before[name][kept_own]
     _anchor_where_they_are(problem, index[~kept_own])
-    result.update(frames=[int(sequence_frames[i]) for i in lost[better]],
-                  iou_before=[round(float(v), 4) for v in ious[lost][better]],
+    result.update(frames=[int(sequence_frames[i]) for i in off[better]],
+                  iou_before=[round(float(v), 4) for v in ious[off][better]],
                   iou_after=[round(float(v), 4) for v in after[better]])
     return result
 
