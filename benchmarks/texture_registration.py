@@ -28,10 +28,11 @@ import torch  # noqa: E402
 from new_pose_limits import tone_boundary_distance  # noqa: E402
 from pipeline.evaluate.albedo import albedo_truth  # noqa: E402
 from pipeline.evaluate.finished_fit import fitted_avatar, posed_surfaces  # noqa: E402
+from pipeline.fit.albedo_solve import _facing  # noqa: E402
 from pipeline.formats import sequence_folder as seq  # noqa: E402
 from pipeline.handmodel.lbs import load_model_data  # noqa: E402
-from pipeline.render.rasterize import pixel_rays  # noqa: E402
 from pipeline.render.renderer import RenderMesh, render  # noqa: E402
+from pipeline.render.texture import bilinear_texels  # noqa: E402
 
 CHART_JUMP = 20.0   # texels: farther apart, the two UVs lie on different charts
 BAND = 3.0          # texels from the tone boundary (new_pose_limits.py's default)
@@ -69,12 +70,10 @@ def registration(fit, sequence, size=448):
                       antialiased=False)
         both = (fitted["alpha"][0, ..., 0] > 0.5) & (true["alpha"][0, ..., 0] > 0.5)
         distances.append(((fitted["uv"][0] - true["uv"][0]) * texture).norm(dim=-1)[both].numpy())
-        uv = true["uv"][0][both].numpy()
-        column = np.clip((uv[:, 0] * texture).astype(int), 0, texture - 1)
-        row = np.clip(((1 - uv[:, 1]) * texture).astype(int), 0, texture - 1)
-        band.append(boundary[row, column] < BAND)
-        rays = torch.nn.functional.normalize(pixel_rays(K[i:i + 1], 1, height, width, torch.float32, "cpu"), dim=-1)
-        facing.append((-(true["normal"] * rays).sum(-1))[0][both].numpy())
+        rows, columns, weights = bilinear_texels(true["uv"][0][both], texture)   # the renderer's own lookup
+        nearest = weights.argmax(1, keepdim=True)
+        band.append(boundary[rows.gather(1, nearest)[:, 0].numpy(), columns.gather(1, nearest)[:, 0].numpy()] < BAND)
+        facing.append(_facing(true["normal"], K[i:i + 1])[0][both].numpy())
         frame_of.append(np.full(int(both.sum()), i))
     distances, band, facing, frame_of = map(np.concatenate, (distances, band, facing, frame_of))
     same_chart = distances < CHART_JUMP
