@@ -79,10 +79,7 @@ class _Observations:
     bilinear weights (N, 4), its shading (N, 3) and colour (N, 3); with an environment light,
     also the shading without it (N, 3, exposure gain included), the gain (N, 3) and the
     harmonics at the pixel's shading normal (N, 8); with FitSettings.albedo_facing on, how
-    squarely each pixel sees the surface (N,) in [0, 1] (_facing). `places` (N, 16) uint8: for
-    each pair (i, j) of a pixel's four texels, where texel j sits in texel i's STENCIL, which is
-    all the normal equations need of the texels' layout (stencil_places; made once, as every
-    solve of the same pixels reuses it)."""
+    squarely each pixel sees the surface (N,) in [0, 1] (_facing)."""
     texels: torch.Tensor
     weights: torch.Tensor
     shading: torch.Tensor
@@ -91,7 +88,6 @@ class _Observations:
     gain: torch.Tensor | None = None
     basis: torch.Tensor | None = None
     facing: torch.Tensor | None = None
-    places: torch.Tensor | None = None
 
     def pixel_weights(self, weights=None):
         """(N,) the solve's weight of each pixel: `weights` (default 1) times its facing, when on."""
@@ -171,7 +167,7 @@ def _solved_in_shading_space(problem, shadows, batch_size, current, solve_enviro
             environment = _solved_environment(seen, albedo, uniform, ambient)
             seen = seen.under_environment(environment)
             first = _NormalEquations(size, seen, uniform)
-            albedo, solved = first.solve(current, ANCHOR * first.data_weight())
+            albedo, solved = first.solve(current, ANCHOR * first.data_weight(), start=albedo)
     prior = None
     for _ in range(REWEIGHTINGS):
         weights, clip_variance = _consistency_weights(seen, albedo, size)
@@ -180,7 +176,7 @@ def _solved_in_shading_space(problem, shadows, batch_size, current, solve_enviro
             environment = _solved_environment(seen, albedo, weights, ambient)
             seen = seen.under_environment(environment)
         prior = _prior_weight(seen, first.coverage, albedo, current, clip_variance) if prior is None else prior
-        albedo, solved = _NormalEquations(size, seen, weights).solve(current, prior)
+        albedo, solved = _NormalEquations(size, seen, weights).solve(current, prior, start=albedo)
     return albedo, solved, environment
 
 
@@ -287,8 +283,7 @@ def _observations(problem, shadows, batch_size, size, frames=None):
     facing = rest.pop(0) if facing_on else None
     rows, columns, weights = bilinear_texels(uv, size)
     texels = (rows * size + columns).to(torch.int32)    # int32: memory
-    return _Observations(texels, weights, shading, colour, *rest, facing=facing,
-                         places=stencil_places(texels, size))
+    return _Observations(texels, weights, shading, colour, *rest, facing=facing)
 
 
 def stencil_places(texels, size):
@@ -298,6 +293,14 @@ def stencil_places(texels, size):
     rows, columns = texels // size, texels % size
     places = (rows[:, None, :] - rows[:, :, None] + 1) * 3 + (columns[:, None, :] - columns[:, :, None] + 1)
     return places.to(torch.uint8).reshape(len(texels), 16)
+
+
+def _cell_texels(cells, size):
+    """(N, 4) flat indices of the four texels bilinear_texels reads in each cell (N,) (the flat
+    index of its top-left texel): it, right, below, below right, held at the texture's edge."""
+    rows, columns = cells // size, cells % size
+    below, right = (rows + 1).clamp(max=size - 1), (columns + 1).clamp(max=size - 1)
+    return torch.stack([rows * size + columns, rows * size + right, below * size + columns, below * size + right], 1)
 
 
 def _facing(normals, K):
@@ -369,28 +372,40 @@ def _prior_weight(seen, coverage, solved, current, clip_variance):
 class _NormalEquations:
     """sum over pixels of weight * (S * sum_i w_i a_(k_i) - I)^2, per channel, as a 9-point
     stencil per texel (matrix) and a right-hand side, plus each texel's bilinear weight
-    (coverage). Gathered PIXEL_CHUNK pixels at a time, each entry of a chunk in one index_add_
-    into rows of the three channels (ten times faster than an index_add_ per texel pair and
-    channel; docs/performance.md)."""
+    (coverage).
+
+    A pixel's four texels are those of its bilinear cell (bilinear_texels: the cell's top-left
+    texel and its neighbours right and below, held at the texture's edge), so its 16 pair
+    products, 4 right-hand-side terms and 4 weights are first summed per cell, PIXEL_CHUNK pixels
+    at a time, in one index_add_ of whole rows (half the time of scattering every entry to its
+    texel pair), and the cells' sums are then spread to their texels once."""
 
     def __init__(self, size, seen, pixel_weight):
         self.size = size
         dtype, device = seen.shading.dtype, seen.shading.device
         count = size * size
-        matrix = torch.zeros(count * len(STENCIL), 3, dtype=dtype, device=device)
-        rhs = torch.zeros(count, 3, dtype=dtype, device=device)
-        coverage = torch.zeros(count, dtype=dtype, device=device)
-        places = stencil_places(seen.texels, size) if seen.places is None else seen.places
+        # per cell: 16 pair sums x 3 channels, then 4 right-hand-side terms x 3, then 4 coverages
+        cells = torch.zeros(count, 16 * 3 + 4 * 3 + 4, dtype=dtype, device=device)
         weighted = seen.shading * pixel_weight[:, None]
-        for chunk in torch.arange(len(seen.texels), device=device).split(PIXEL_CHUNK):
-            texels, weights = seen.texels[chunk].long(), seen.weights[chunk]
-            rhs.index_add_(0, texels.flatten(),
-                           (weights[:, :, None] * (weighted[chunk] * seen.colour[chunk])[:, None, :]).reshape(-1, 3))
-            coverage.index_add_(0, texels.flatten(), weights.flatten())
-            slots = (texels[:, :, None] * len(STENCIL)).expand(-1, 4, 4).reshape(-1, 16) + places[chunk]
-            pairs = (weights[:, :, None] * weights[:, None, :]).reshape(-1, 16)
-            matrix.index_add_(0, slots.flatten(),
-                              (pairs[:, :, None] * (weighted[chunk] * seen.shading[chunk])[:, None, :]).reshape(-1, 3))
+        buffer = torch.empty(min(PIXEL_CHUNK, len(seen.texels)), cells.shape[1], dtype=dtype, device=device)
+        for start in range(0, len(seen.texels), PIXEL_CHUNK):
+            chunk = slice(start, start + PIXEL_CHUNK)
+            weights = seen.weights[chunk]
+            rows = buffer[:len(weights)]
+            pairs = (weights[:, :, None] * weights[:, None, :]).view(-1, 16, 1)
+            torch.mul(pairs, (weighted[chunk] * seen.shading[chunk])[:, None, :], out=rows[:, :48].view(-1, 16, 3))
+            torch.mul(weights[:, :, None], (weighted[chunk] * seen.colour[chunk])[:, None, :],
+                      out=rows[:, 48:60].view(-1, 4, 3))
+            rows[:, 60:] = weights
+            cells.index_add_(0, seen.texels[chunk, 0].long(), rows)
+        texels = _cell_texels(torch.arange(count, device=device), size)    # (count, 4) each cell's texels
+        slots = (texels[:, :, None] * len(STENCIL)).expand(-1, 4, 4).reshape(-1, 16) + stencil_places(texels, size)
+        matrix = torch.zeros(count * len(STENCIL), 3, dtype=dtype, device=device)
+        matrix.index_add_(0, slots.flatten(), cells[:, :48].reshape(-1, 3))
+        rhs = torch.zeros(count, 3, dtype=dtype, device=device).index_add_(0, texels.flatten(),
+                                                                            cells[:, 48:60].reshape(-1, 3))
+        coverage = torch.zeros(count, dtype=dtype, device=device).index_add_(0, texels.flatten(),
+                                                                              cells[:, 60:].flatten())
         self.matrix, self.rhs, self.coverage = matrix.t().contiguous(), rhs.t().contiguous(), coverage
 
     def diagonal(self):
@@ -402,14 +417,15 @@ class _NormalEquations:
         solved = self.coverage.view(self.size, self.size) >= MIN_COVERAGE
         return float(self.diagonal().mean(0)[solved].mean()) if solved.any() else 0.0
 
-    def solve(self, start, anchor):
-        """(albedo (3, T, T), solved (T, T) bool): conjugate gradients from `start`, with a pull
-        `anchor` towards it and SMOOTHNESS times the data weight between neighbours."""
+    def solve(self, target, anchor, start=None):
+        """(albedo (3, T, T), solved (T, T) bool): conjugate gradients from `start` (default
+        `target`: a solve of nearly the same equations starts where the last one ended), with a pull
+        `anchor` towards `target` and SMOOTHNESS times the data weight between neighbours."""
         size = self.size
         matrix = self.matrix.view(3, size, size, len(STENCIL))
         solved = self.coverage.view(size, size) >= MIN_COVERAGE
         if not solved.any():
-            return start.clone(), solved
+            return target.clone(), solved
         smoothness = SMOOTHNESS * self.data_weight()
 
         def apply(albedo):
@@ -419,8 +435,9 @@ class _NormalEquations:
                 result = result + matrix[..., index] * padded[:, 1 + dy:1 + dy + size, 1 + dx:1 + dx + size]
             return result + smoothness * _grid_laplacian(albedo)
 
-        rhs = self.rhs.view(3, size, size) + anchor * start
+        rhs = self.rhs.view(3, size, size) + anchor * target
         diagonal = self.diagonal() + anchor + 4 * smoothness
+        start = target if start is None else start
         albedo = _conjugate_gradients(apply, rhs, start.clone(), 1 / diagonal, CG_ITERATIONS)
         return albedo.clamp(0, 1), solved
 

@@ -9,7 +9,7 @@ import torch
 from ..render.renderer import render
 from .clip_data import saturated
 from .energy_terms import SHADED, terms_for
-from .problem import FitProblem
+from .problem import FitProblem, SilhouetteView
 from .schedule import StageSpec
 
 
@@ -21,13 +21,21 @@ class BatchData:
         self.problem, self.stage, self.frames, self.generator = problem, stage, frames, generator
         avatar, clip = problem.avatar, problem.clip
         self.vertices, self.keypoints = avatar.posed_coarse(frames) if stage.coarse else avatar.posed(frames)
-        self.images = render(self.vertices, avatar.coarse_mesh if stage.coarse else avatar.mesh, clip.K[frames],
-                             clip.height, clip.width, outputs=("alpha", "rgb") if shaded else ("alpha",),
+        # the alignment compares silhouettes at its own, smaller size (FitProblem.alignment_view)
+        self.view = problem.alignment_view if stage.coarse else \
+            SilhouetteView(clip.K, clip.height, clip.width, clip.masks, problem.silhouette_weight)
+        self.images = render(self.vertices, avatar.coarse_mesh if stage.coarse else avatar.mesh, self.view.K[frames],
+                             self.view.height, self.view.width, outputs=("alpha", "rgb") if shaded else ("alpha",),
                              appearance=avatar.appearance() if shaded else None,
                              light=avatar.light(shadows, None if stage.coarse else frames, self.vertices)
                              if shaded else None,
                              background=torch.zeros(3, dtype=self.vertices.dtype, device=self.vertices.device))
-        self.masks = clip.masks[frames]
+        self.masks = self.view.masks[frames]
+
+    @property
+    def silhouette_weight(self):
+        """(B, h, w, 1) the weight of the masks' pixels, None: 1 everywhere."""
+        return None if self.view.weight is None else self.view.weight[self.frames]
 
     @functools.cached_property
     def target(self):

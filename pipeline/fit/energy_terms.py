@@ -102,8 +102,7 @@ def _term(name, weight, stages, needs=(), prepare=None, applies=None, stage_fact
 
 @_term("silhouette", 7.0, _GEOMETRY | {StageKind.HELD_OUT})
 def _silhouette(batch):
-    weight = batch.problem.silhouette_weight
-    return losses.silhouette_loss(batch.images["alpha"], batch.masks, None if weight is None else weight[batch.frames])
+    return losses.silhouette_loss(batch.images["alpha"], batch.masks, batch.silhouette_weight)
 
 
 # 10 (Table C.1) in the alignment, a tenth of it after: at 10 throughout it pulled the poses back to the
@@ -232,8 +231,7 @@ def _texture(batch):
 
 @_term("normal_map", 0.5, _APPEARANCE)
 def _normal_map(batch):
-    unit = torch.nn.functional.normalize(batch.problem.avatar.normal_map, dim=0)
-    return losses.normal_map_loss(unit, batch.problem.uv_mask, batch.generator)
+    return losses.normal_map_loss(batch.problem.avatar.unit_normal_map(), batch.problem.uv_mask, batch.generator)
 
 
 # per-frame exposure gains: smooth over time, average 1, near what the background shows (when on)

@@ -76,6 +76,9 @@ AFTER_THE_STAGES = ("solve_albedo", "solve_resolution")
 FINER_SOLVE = "finer"
 # a budgeted fit resumes with a new budget, or without one on the schedule it had (FitState.schedule)
 BUDGET = ("budget_seconds",)
+# the alignment's silhouette size: its poses come out the same at either (docs/performance.md), so a fit started
+# before the setting, or under another, resumes with today's
+ALIGNMENT_SIZE = ("align_downscale",)
 
 __all__ = ["fit", "FitJob", "FitError", "FitObserver", "CHECKPOINT_FILE"]
 
@@ -504,7 +507,7 @@ class _CheckpointSaver:
         if saved.version != CHECKPOINT_VERSION:
             raise FitError(f"{self.path} was written by an older harp version (checkpoint {saved.version}): "
                            "fit again without --resume")
-        settings, tolerated = self.problem.settings, AFTER_THE_STAGES + BUDGET
+        settings, tolerated = self.problem.settings, AFTER_THE_STAGES + BUDGET + ALIGNMENT_SIZE
         saved_values = dict(vars(saved.settings))
         renamed = RENAMED_PRESETS.get(saved_values["preset"])
         if renamed == settings.preset:      # started under the preset's old name

@@ -86,6 +86,12 @@ class FitProblem:
     def all_frames(self) -> torch.Tensor:
         return torch.arange(len(self.frames), device=self.device)
 
+    @functools.cached_property
+    def alignment_view(self) -> "SilhouetteView":
+        """The frames' masks and cameras as the alignment renders them: `align_downscale` times
+        smaller than the working frames (silhouette_view), made once."""
+        return silhouette_view(self.clip, self.silhouette_weight, self.settings.align_downscale)
+
     def at_resolution(self, resolution) -> "FitProblem":
         """The same problem (its avatar itself, not a copy) over its frames loaded at `resolution`
         (long side, pixels; never above the clip's own size): the view the albedo solve reads. Itself
@@ -236,6 +242,38 @@ def measured_exposure(clip):
     device = clip.images.device
     return (torch.as_tensor(log_gain, dtype=clip.images.dtype, device=device),
             torch.as_tensor(known, device=device))
+
+
+@dataclasses.dataclass(frozen=True)
+class SilhouetteView:
+    """Masks and cameras at a size a stage renders its silhouettes: K (F, 3, 3), masks (F, h, w, 1)
+    in [0, 1] and their weight (F, h, w, 1) or None (1 everywhere)."""
+
+    K: torch.Tensor
+    height: int
+    width: int
+    masks: torch.Tensor
+    weight: torch.Tensor | None
+
+
+def silhouette_view(clip: ClipData, weight, factor: int) -> SilhouetteView:
+    """The clip's masks and silhouette weight averaged over `factor` x `factor` pixel blocks, and
+    its cameras for the smaller images (K / factor: a block's centre is where its pixels' centres
+    average, under the pixel-centre convention of rasterize.py). Frames whose sides are not a
+    multiple of `factor` are padded with pixels of weight 0 (outside the picture, nothing is
+    said). `factor` 1: the clip itself."""
+    if factor <= 1:
+        return SilhouetteView(clip.K, clip.height, clip.width, clip.masks, weight)
+    height, width = -(-clip.height // factor), -(-clip.width // factor)
+    pad = (0, width * factor - clip.width, 0, height * factor - clip.height)
+    weight = torch.ones_like(clip.masks) if weight is None else weight
+    if any(pad):
+        weight = torch.nn.functional.pad(weight.movedim(-1, 1), pad).movedim(1, -1)
+    masks = torch.nn.functional.pad(clip.masks.movedim(-1, 1), pad)
+    pooled_masks = torch.nn.functional.avg_pool2d(masks, factor).movedim(1, -1)
+    pooled_weight = torch.nn.functional.avg_pool2d(weight.movedim(-1, 1), factor).movedim(1, -1)
+    scale = torch.tensor([1.0 / factor, 1.0 / factor, 1.0], dtype=clip.K.dtype, device=clip.K.device)
+    return SilhouetteView(clip.K * scale[:, None], height, width, pooled_masks, pooled_weight)
 
 
 def _silhouette_weight(clip, avatar, keypoints):

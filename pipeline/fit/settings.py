@@ -25,6 +25,12 @@ class FitSettings:
     batch_size: int = 6
     steps: tuple = (200, 300, 200)  # geometry; geometry + appearance; appearance
     align_steps: int = 100          # coarse alignment of every frame before the geometry stage
+    # the alignment renders and compares its silhouettes this many times smaller than the working frames
+    # (FitProblem.alignment_view): it renders every frame in every step, and 84% of its step was rendering. At 2,
+    # `fast`'s alignment of the 150-frame sun clip took 80 s against 165 on one core, the phone-like and demo clips'
+    # 17.5 / 20 s against 36 / 35, their aligned poses' joint error and IoU level (1.244 / 1.243 mm, 0.9357 both);
+    # at 3 and 4 the IoU began to fall (0.9348, 0.9324) for 21-28 s more saved (docs/performance.md)
+    align_downscale: int = 2
     lr_align_rotation: float = 1e-2
     lr_align_translation: float = 1e-3
     lr_geometry: float = 1e-3       # rotations (rad) and translations (m) per Adam step
@@ -123,6 +129,9 @@ class FitSettings:
             raise ValueError(f"light_search must be 'on' or 'off', got {self.light_search!r}")
         if self.albedo_facing not in ("on", "off"):
             raise ValueError(f"albedo_facing must be 'on' or 'off', got {self.albedo_facing!r}")
+        if not isinstance(self.align_downscale, int) or self.align_downscale < 1:
+            raise ValueError(f"align_downscale must be a whole number from 1 (the working size), "
+                             f"got {self.align_downscale!r}")
         if self.solve_resolution and self.solve_resolution < 16:
             raise ValueError(f"solve_resolution must be at least 16 px (0 or None: the working resolution), "
                              f"got {self.solve_resolution}")
@@ -164,6 +173,7 @@ class FitSettings:
         values.setdefault("occlusion", "off")             # saved before the room light's occlusion
         values.setdefault("restart_lost_frames", "off")   # saved before lost frames were started again
         values.setdefault("light_search", "off")          # saved before the light was searched
+        values.setdefault("align_downscale", 1)           # saved before the alignment rendered smaller
         unknown = sorted(set(values) - {field.name for field in dataclasses.fields(cls)})
         if unknown:
             raise ValueError(f"settings this version does not know: {', '.join(unknown)}")

@@ -24,6 +24,7 @@ from .antialias import EdgeTopology, edge_topology
 from .antialias import antialias as reference_antialias
 from .interpolate import to_image
 from .texture import sample_texture
+from .vector_ops import normalized
 
 OUTPUTS = ("alpha", "rgb", "depth", "normal", "albedo", "uv", "shading_normal", "lost_light")
 
@@ -166,7 +167,7 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
             value = sample_texture(appearance.normal_map, uv)
             normal = ops.perturbed_normal(smooth_normals, tangent, handedness[frags.face], value)
         else:
-            normal = torch.nn.functional.normalize(smooth_normals, dim=-1, eps=1e-12)
+            normal = normalized(smooth_normals)
         lost = None
         if light.occlusion is not None:
             lost, = ops.interpolate_many([light.occlusion.to(points.dtype)], frags, faces)
@@ -205,8 +206,8 @@ def _lit_colour(ops, points, faces, frags, position, albedo, normal, light, lost
     if lost is not None:
         colour = colour - albedo * room_occlusion.lost_shading(lost, light.ambient, light.environment, light.bounce)
     if light.specular is not None:
-        to_light = torch.nn.functional.normalize(light_position - position, dim=-1, eps=1e-12)
-        to_camera = torch.nn.functional.normalize(-position, dim=-1, eps=1e-12)   # the camera is the origin
+        to_light = normalized(light_position - position)
+        to_camera = normalized(-position)   # the camera is the origin
         sheen = reference_shading.specular_shading(normal, to_light, to_camera, *light.specular) * (1 - light.ambient)
         colour = colour + (sheen if visibility is None else sheen * visibility)
         # and the room's light in the lobe, less the share of the room the hand keeps from the point

@@ -11,6 +11,7 @@ import torch
 from ..formats.environment_light import basis as environment_basis
 from ..formats.environment_light import radiance_basis, sphere_directions
 from ..formats.specular_lobe import BASE_REFLECTANCE, ROUGHNESS_RANGE
+from .vector_ops import normalized
 
 
 def vertex_normals(points, faces):
@@ -112,7 +113,7 @@ def specular_shading(normal, to_light, to_camera, roughness, level):
 def _lobe_without_fresnel(normal, to_light, to_camera, roughness):
     """((N, 1) specular_shading with a reflectance of 1, (N, 1) the cosine its Fresnel term takes:
     between the direction to the camera and the half-vector)."""
-    half = torch.nn.functional.normalize(to_light + to_camera, dim=-1, eps=1e-12)
+    half = normalized(to_light + to_camera)
     n_l = (normal * to_light).sum(-1, keepdim=True).clamp(min=0)
     n_v = (normal * to_camera).sum(-1, keepdim=True).clamp(min=1e-4)
     n_h = (normal * half).sum(-1, keepdim=True).clamp(min=0)

@@ -17,6 +17,12 @@ def cross3(u, v):
     return torch.stack([uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx], -1)
 
 
+def dot3(u, v):
+    """(..., 1) the dot products of (..., 3) u and v, component by component: three times as fast
+    on a CPU as a reduction over a last dimension of three."""
+    return u[..., 0:1] * v[..., 0:1] + u[..., 1:2] * v[..., 1:2] + u[..., 2:3] * v[..., 2:3]
+
+
 def normalized(vectors, eps=1e-12):
     """(..., 3) the vectors divided by their lengths (at least `eps`), as F.normalize(dim=-1)."""
     return _Normalized.apply(vectors, eps)
@@ -27,7 +33,7 @@ class _Normalized(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, vectors, eps):
-        length = vectors.square().sum(-1, keepdim=True).sqrt()
+        length = dot3(vectors, vectors).sqrt()
         clamped = length.clamp(min=eps)
         unit = vectors / clamped
         ctx.save_for_backward(unit, clamped, length > eps)
@@ -36,5 +42,5 @@ class _Normalized(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad):
         unit, clamped, above = ctx.saved_tensors
-        along = (unit * grad).sum(-1, keepdim=True) * above
+        along = dot3(unit, grad) * above
         return (grad - unit * along) / clamped, None
