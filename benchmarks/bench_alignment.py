@@ -10,7 +10,7 @@ benchmarks/score_fits.py scores a fit: the mean and least silhouette IoU of its 
 at the working size (the report's, on the subdivided mesh, so not at the alignment's own size),
 and the Procrustes joint and vertex errors against gt.npz. One JSON line per fit, with the
 alignment's seconds (the report's stage time: one torch thread when OMP_NUM_THREADS=1). The
-figures in docs/performance.md ("The alignment's silhouettes at half size") come from this script.
+figures in docs/performance.md ("`fast` on one core, 150 frames, today") come from this script.
 """
 from __future__ import annotations
 

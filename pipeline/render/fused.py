@@ -30,7 +30,7 @@ from .interpolate import Fragments
 from .rasterize import _FACE_BITS, NEAR, Rasterization, candidate_test, face_boxes, face_planes, project
 from .shading import tangent_weights
 from .sparse_operator import SparseOperator, vertex_major
-from .vector_ops import cross3, normalized
+from .vector_ops import cross3, dot3, normalized
 from .shadow_map import BIAS, EMPTY_DEPTH, SHARPNESS, light_view
 
 
@@ -124,7 +124,7 @@ class _Barycentrics(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad):
         corners, screen, bary, total, area = ctx.saved_tensors
-        grad_weighted = (grad - _dot(grad, bary)) / total                        # (N, 3)
+        grad_weighted = (grad - dot3(grad, bary)) / total                        # (N, 3)
         grad_inverse_z = grad_weighted * screen
         grad_screen = grad_weighted * corners[..., 2]
         grad_w0 = (grad_screen[:, 0] - grad_screen[:, 2]) / area                  # w2 = 1 - w0 - w1
@@ -196,15 +196,9 @@ def perturbed_normal(normal, tangent, handedness, normal_map_value):
 
 def _unit(vector, eps=1e-12):
     """(rows of (N, 3) made unit length, their lengths (N, 1)); the length component by component
-    (_dot), three times as fast as a norm over the last dimension."""
-    length = _dot(vector, vector).sqrt().clamp(min=eps)
+    (dot3), three times as fast as a norm over the last dimension."""
+    length = dot3(vector, vector).sqrt().clamp(min=eps)
     return vector / length, length
-
-
-def _dot(u, v):
-    """(N, 1): the dot products of rows of (N, 3); component by component, three times as fast
-    on a CPU as a reduction over a last dimension of three."""
-    return u[:, :1] * v[:, :1] + u[:, 1:2] * v[:, 1:2] + u[:, 2:3] * v[:, 2:3]
 
 
 class _PerturbedNormal(torch.autograd.Function):
@@ -215,7 +209,7 @@ class _PerturbedNormal(torch.autograd.Function):
     @staticmethod
     def forward(ctx, normal, tangent, handedness, value):
         n, normal_length = _unit(normal)
-        along = _dot(tangent, n)
+        along = dot3(tangent, n)
         t, tangent_length = _unit(tangent - along * n)
         b = handedness[:, None] * cross3(n, t)
         out, out_length = _unit(value[:, :1] * t + value[:, 1:2] * b + value[:, 2:3] * n)
@@ -226,15 +220,15 @@ class _PerturbedNormal(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad):
         tangent, handedness, value, n, t, b, out, normal_length, tangent_length, out_length, along = ctx.saved_tensors
-        grad_s = (grad - out * _dot(out, grad)) / out_length
-        grad_value = torch.cat([_dot(grad_s, t), _dot(grad_s, b), _dot(grad_s, n)], dim=-1)
+        grad_s = (grad - out * dot3(out, grad)) / out_length
+        grad_value = torch.cat([dot3(grad_s, t), dot3(grad_s, b), dot3(grad_s, n)], dim=-1)
         grad_b = handedness[:, None] * value[:, 1:2] * grad_s
         grad_t = value[:, :1] * grad_s + cross3(grad_b, n)      # a . (n x t) = t . (a x n)
         grad_n = value[:, 2:3] * grad_s + cross3(t, grad_b)     # ... = n . (t x a)
-        grad_u = (grad_t - t * _dot(t, grad_t)) / tangent_length
-        grad_tangent = grad_u - n * _dot(n, grad_u)
-        grad_n = grad_n - along * grad_u - _dot(n, grad_u) * tangent
-        grad_normal = (grad_n - n * _dot(n, grad_n)) / normal_length
+        grad_u = (grad_t - t * dot3(t, grad_t)) / tangent_length
+        grad_tangent = grad_u - n * dot3(n, grad_u)
+        grad_n = grad_n - along * grad_u - dot3(n, grad_u) * tangent
+        grad_normal = (grad_n - n * dot3(n, grad_n)) / normal_length
         return grad_normal, grad_tangent, None, grad_value
 
 
@@ -253,7 +247,7 @@ class _LitColour(torch.autograd.Function):
     @staticmethod
     def forward(ctx, albedo, normal, position, light_position, ambient, visibility):
         to_light, length = _unit(light_position - position)
-        cosine = _dot(normal, to_light)
+        cosine = dot3(normal, to_light)
         diffuse = cosine.clamp(min=0)
         lit = diffuse if visibility is None else diffuse * visibility
         factor = ambient + (1 - ambient) * lit
@@ -265,12 +259,12 @@ class _LitColour(torch.autograd.Function):
     def backward(ctx, grad):
         albedo, normal, to_light, length, cosine, diffuse, lit, factor, ambient, visibility = ctx.saved_tensors
         light_shape, ambient_shape = ctx.shapes
-        grad_factor = _dot(grad, albedo)
+        grad_factor = dot3(grad, albedo)
         grad_lit = grad_factor * (1 - ambient)
         grad_visibility = None if visibility is None else grad_lit * diffuse
         grad_cosine = (grad_lit if visibility is None else grad_lit * visibility) * (cosine >= 0).to(grad.dtype)
         grad_to_light = grad_cosine * normal
-        grad_offset = (grad_to_light - to_light * _dot(to_light, grad_to_light)) / length
+        grad_offset = (grad_to_light - to_light * dot3(to_light, grad_to_light)) / length
         return (grad * factor, grad_cosine * to_light, -grad_offset, grad_offset.sum_to_size(light_shape),
                 (grad_factor * (1 - lit)).sum_to_size(ambient_shape), grad_visibility)
 
