@@ -34,6 +34,7 @@ from ..formats.colour_model import linear_to_srgb, srgb_to_linear
 from ..formats.environment_light import sphere_directions
 from ..render.rasterize import pixel_rays
 from ..render.renderer import render
+from ..render.vector_ops import dot3, normalized
 
 CANDIDATES = 64                      # directions (a Fibonacci lattice over the sphere)
 AMBIENTS = (0.15, 0.3, 0.5, 0.7)     # ambient ratios tried with each
@@ -125,8 +126,8 @@ def _texel_colours(positions, normals, colours, texels, light, ambient):
     """((TEXELS * TEXELS, 3) each texel's colour in least squares under the shading
     a + (1 - a) max(0, n . l) of a point light at `light` and ambient ratio a, (N, 1) that shading,
     (TEXELS * TEXELS,) bool: the texels some pixel shows)."""
-    to_light = torch.nn.functional.normalize(light - positions, dim=-1)
-    shading = (ambient + (1 - ambient) * (normals * to_light).sum(-1).clamp(min=0))[:, None]
+    to_light = normalized(light - positions)
+    shading = ambient + (1 - ambient) * dot3(normals, to_light).clamp(min=0)
     size = TEXELS * TEXELS
     numerator = torch.zeros(size, 3, dtype=colours.dtype, device=colours.device).index_add_(0, texels, colours * shading)
     denominator = torch.zeros(size, 1, dtype=colours.dtype, device=colours.device).index_add_(0, texels,
