@@ -19,7 +19,9 @@ def cross3(u, v):
 
 def dot3(u, v):
     """(..., 1) the dot products of (..., 3) u and v, component by component: three times as fast
-    on a CPU as a reduction over a last dimension of three."""
+    on a CPU as a reduction over a last dimension of three, where autograd does not record it (in
+    a hand-written backward, under no_grad). Recorded, its slices' backward costs more than the
+    reduction's (5.8 against 3.7 ms forward and backward for 120k rows): keep (u * v).sum(-1) there."""
     return u[..., 0:1] * v[..., 0:1] + u[..., 1:2] * v[..., 1:2] + u[..., 2:3] * v[..., 2:3]
 
 
