@@ -41,6 +41,7 @@ def test_a_given_weight_is_averaged_and_factor_one_is_the_clip_itself():
     clip = _clip(masks, intrinsics(10.0, 4, 4)[None])
     view = silhouette_view(clip, weight, 2)
     assert np.allclose(view.weight[0, ..., 0].numpy(), [[1, 1], [0, 0]])
+    assert silhouette_view(clip, None, 2).weight is None     # nothing padded, nothing weighed
     same = silhouette_view(clip, weight, 1)
     assert same.masks is clip.masks and same.weight is weight and same.K is clip.K
 

@@ -9,7 +9,7 @@ import torch
 from ..render.renderer import render
 from .clip_data import saturated
 from .energy_terms import SHADED, terms_for
-from .problem import FitProblem, SilhouetteView
+from .problem import FitProblem
 from .schedule import StageSpec
 
 
@@ -22,8 +22,7 @@ class BatchData:
         avatar, clip = problem.avatar, problem.clip
         self.vertices, self.keypoints = avatar.posed_coarse(frames) if stage.coarse else avatar.posed(frames)
         # the alignment compares silhouettes at its own, smaller size (FitProblem.alignment_view)
-        self.view = problem.alignment_view if stage.coarse else \
-            SilhouetteView(clip.K, clip.height, clip.width, clip.masks, problem.silhouette_weight)
+        self.view = problem.alignment_view if stage.coarse else problem.working_view
         self.images = render(self.vertices, avatar.coarse_mesh if stage.coarse else avatar.mesh, self.view.K[frames],
                              self.view.height, self.view.width, outputs=("alpha", "rgb") if shaded else ("alpha",),
                              appearance=avatar.appearance() if shaded else None,

@@ -92,6 +92,11 @@ class FitProblem:
         smaller than the working frames (silhouette_view), made once."""
         return silhouette_view(self.clip, self.silhouette_weight, self.settings.align_downscale)
 
+    @functools.cached_property
+    def working_view(self) -> "SilhouetteView":
+        """The frames' masks and cameras at the working size, as the other stages render them."""
+        return silhouette_view(self.clip, self.silhouette_weight, 1)
+
     def at_resolution(self, resolution) -> "FitProblem":
         """The same problem (its avatar itself, not a copy) over its frames loaded at `resolution`
         (long side, pixels; never above the clip's own size): the view the albedo solve reads. Itself
@@ -266,12 +271,14 @@ def silhouette_view(clip: ClipData, weight, factor: int) -> SilhouetteView:
         return SilhouetteView(clip.K, clip.height, clip.width, clip.masks, weight)
     height, width = -(-clip.height // factor), -(-clip.width // factor)
     pad = (0, width * factor - clip.width, 0, height * factor - clip.height)
-    weight = torch.ones_like(clip.masks) if weight is None else weight
-    if any(pad):
-        weight = torch.nn.functional.pad(weight.movedim(-1, 1), pad).movedim(1, -1)
-    masks = torch.nn.functional.pad(clip.masks.movedim(-1, 1), pad)
-    pooled_masks = torch.nn.functional.avg_pool2d(masks, factor).movedim(1, -1)
-    pooled_weight = torch.nn.functional.avg_pool2d(weight.movedim(-1, 1), factor).movedim(1, -1)
+
+    def pooled(images):
+        return torch.nn.functional.avg_pool2d(torch.nn.functional.pad(images.movedim(-1, 1), pad), factor).movedim(1, -1)
+
+    if weight is None and any(pad):       # the padding says nothing: a weight of 0 there
+        weight = torch.ones_like(clip.masks)
+    pooled_weight = None if weight is None else pooled(weight)
+    pooled_masks = pooled(clip.masks)
     scale = torch.tensor([1.0 / factor, 1.0 / factor, 1.0], dtype=clip.K.dtype, device=clip.K.device)
     return SilhouetteView(clip.K * scale[:, None], height, width, pooled_masks, pooled_weight)
 
