@@ -71,6 +71,10 @@ ENVIRONMENT_RIDGE = 1e-3   # the environment solve's pull towards a uniform room
 ENVIRONMENT_STIFFNESS = 1e4   # its hold on the world's radiance at or above 0, likewise (least_squares_above)
 # the 3 x 3 stencil: offsets (row, column) to the neighbours a texel's equations couple it with
 STENCIL = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
+# a bilinear cell's distinct pairs (i, j), i <= j, of its four texels, and for each ordered pair in row-major order
+# of (i, j) the index of its distinct pair
+PAIRS = [(i, j) for i in range(4) for j in range(i, 4)]
+PAIR_OF_ORDERED = [PAIRS.index((min(i, j), max(i, j))) for i in range(4) for j in range(4)]
 
 
 @dataclasses.dataclass
@@ -254,31 +258,33 @@ def _observations(problem, shadows, batch_size, size, frames=None):
         images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=outputs,
                         appearance=appearance, light=dataclasses.replace(light, environment=None, specular=None),
                         antialiased=False)
+        # the pixels of the mask that the surface covers, each from here on a row (a fifth of the image or less)
+        usable = problem.colour_pixels(batch, albedo_solve=True) & (images["alpha"][..., 0] > 0.5)
         gain = avatar.exposure_gain(batch) if problem.exposure_on else torch.ones_like(avatar.exposure_gain(batch))
-        gain = gain.expand_as(images["rgb"])
-        colour = clip.images[batch]
+        gain = gain.expand_as(images["rgb"])[usable]
+        colour = clip.images[batch][usable]
         if linear:   # I = g encode(S a + P): decode(I / g) = S a + P
             colour, gain = srgb_to_linear(colour / gain), torch.ones_like(gain)
-        base = images["rgb"] * gain
+        base = images["rgb"][usable] * gain
         basis = None
         shading = base
         if environment is not None:
-            basis = environment_basis_values(images["shading_normal"])
+            basis = environment_basis_values(images["shading_normal"][usable])
             if occluded:   # the harmonics' light less what the hand keeps from the point (render/occlusion.py)
-                basis = basis - images["lost_light"][..., 1:]
+                basis = basis - images["lost_light"][usable][..., 1:]
             shading = base + gain * (basis @ environment)
-        usable = problem.colour_pixels(batch, albedo_solve=True) & (images["alpha"][..., 0] > 0.5)
-        drawn = linear_to_srgb(shading) if linear else shading   # an albedo of 1's values in the frame
-        usable = usable & (drawn.min(-1).values > MIN_SHADING)
+        # an albedo of 1's values in the frame: the darkest carry no colour (the encoding is monotonic)
+        bright = shading.min(-1).values > (srgb_to_linear(torch.tensor(MIN_SHADING)).item() if linear else MIN_SHADING)
         if specular is not None:
             # the lobe's highlight and its sheen of the room (at the light's environment as it stands: the
             # environment solve below does not move it)
             sheen = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=("rgb",),
                            appearance=sheen_only, light=light, antialiased=False)["rgb"]
-            colour = colour - gain * sheen
-        parts.append((images["uv"][usable], shading[usable], colour[usable])
-                     + ((_facing(images["normal"], clip.K[batch])[usable],) if facing_on else ())
-                     + (() if environment is None else (base[usable], gain[usable], basis[usable])))
+            colour = colour - gain * sheen[usable]
+        facing = _facing(images["normal"], clip.K[batch])[usable][bright] if facing_on else None
+        parts.append((images["uv"][usable][bright], shading[bright], colour[bright])
+                     + ((facing,) if facing_on else ())
+                     + (() if environment is None else (base[bright], gain[bright], basis[bright])))
     uv, shading, colour, *rest = (torch.cat(column) for column in zip(*parts))
     facing = rest.pop(0) if facing_on else None
     rows, columns, weights = bilinear_texels(uv, size)
@@ -375,37 +381,42 @@ class _NormalEquations:
     (coverage).
 
     A pixel's four texels are those of its bilinear cell (bilinear_texels: the cell's top-left
-    texel and its neighbours right and below, held at the texture's edge), so its 16 pair
-    products, 4 right-hand-side terms and 4 weights are first summed per cell, PIXEL_CHUNK pixels
-    at a time, in one index_add_ of whole rows (half the time of scattering every entry to its
-    texel pair), and the cells' sums are then spread to their texels once."""
+    texel and its neighbours right and below, held at the texture's edge), so its 10 distinct
+    pair products (w_i w_j = w_j w_i: PAIRS), 4 right-hand-side terms and 4 weights are first
+    summed per cell, PIXEL_CHUNK pixels at a time, in one index_add_ of whole rows (half the time
+    of scattering every entry to its texel pair), and the cells' sums are then spread to their
+    texels' 16 ordered pairs once."""
 
     def __init__(self, size, seen, pixel_weight):
         self.size = size
         dtype, device = seen.shading.dtype, seen.shading.device
-        count = size * size
-        # per cell: 16 pair sums x 3 channels, then 4 right-hand-side terms x 3, then 4 coverages
-        cells = torch.zeros(count, 16 * 3 + 4 * 3 + 4, dtype=dtype, device=device)
+        count, pairs = size * size, len(PAIRS)
+        # per cell: the pair sums x 3 channels, then 4 right-hand-side terms x 3, then 4 coverages
+        pair_sums, rhs_sums, coverages = slice(0, pairs * 3), slice(pairs * 3, pairs * 3 + 12), slice(pairs * 3 + 12,
+                                                                                                         None)
+        cells = torch.zeros(count, pairs * 3 + 4 * 3 + 4, dtype=dtype, device=device)
         weighted = seen.shading * pixel_weight[:, None]
         buffer = torch.empty(min(PIXEL_CHUNK, len(seen.texels)), cells.shape[1], dtype=dtype, device=device)
         for start in range(0, len(seen.texels), PIXEL_CHUNK):
             chunk = slice(start, start + PIXEL_CHUNK)
             weights = seen.weights[chunk]
             rows = buffer[:len(weights)]
-            pairs = (weights[:, :, None] * weights[:, None, :]).view(-1, 16, 1)
-            torch.mul(pairs, (weighted[chunk] * seen.shading[chunk])[:, None, :], out=rows[:, :48].view(-1, 16, 3))
+            products = torch.cat([weights[:, i:i + 1] * weights[:, i:] for i in range(4)], 1)[:, :, None]   # PAIRS
+            torch.mul(products, (weighted[chunk] * seen.shading[chunk])[:, None, :],
+                      out=rows[:, pair_sums].view(-1, pairs, 3))
             torch.mul(weights[:, :, None], (weighted[chunk] * seen.colour[chunk])[:, None, :],
-                      out=rows[:, 48:60].view(-1, 4, 3))
-            rows[:, 60:] = weights
+                      out=rows[:, rhs_sums].view(-1, 4, 3))
+            rows[:, coverages] = weights
             cells.index_add_(0, seen.texels[chunk, 0].long(), rows)
+        ordered = cells[:, pair_sums].view(count, pairs, 3)[:, PAIR_OF_ORDERED]     # (count, 16, 3)
         texels = _cell_texels(torch.arange(count, device=device), size)    # (count, 4) each cell's texels
         slots = (texels[:, :, None] * len(STENCIL)).expand(-1, 4, 4).reshape(-1, 16) + stencil_places(texels, size)
         matrix = torch.zeros(count * len(STENCIL), 3, dtype=dtype, device=device)
-        matrix.index_add_(0, slots.flatten(), cells[:, :48].reshape(-1, 3))
+        matrix.index_add_(0, slots.flatten(), ordered.reshape(-1, 3))
         rhs = torch.zeros(count, 3, dtype=dtype, device=device).index_add_(0, texels.flatten(),
-                                                                            cells[:, 48:60].reshape(-1, 3))
+                                                                            cells[:, rhs_sums].reshape(-1, 3))
         coverage = torch.zeros(count, dtype=dtype, device=device).index_add_(0, texels.flatten(),
-                                                                              cells[:, 60:].flatten())
+                                                                              cells[:, coverages].flatten())
         self.matrix, self.rhs, self.coverage = matrix.t().contiguous(), rhs.t().contiguous(), coverage
 
     def diagonal(self):
