@@ -237,8 +237,8 @@ def _observations(problem, shadows, batch_size, size, frames=None):
     """The usable pixels of the fitted frames (_Observations; of `frames`, indices into them,
     default all). In the linear colour model (formats/colour_model.py) the equations hold in
     linear light: each pixel's colour is its frame's value over the exposure gain, decoded from
-    sRGB, and the shading is rendered without the encoding (the gain is then 1 in the equations). Weighting each equation by the curve's
-    slope at its pixel (residuals in display units) was tried and dropped: the deepest shading,
+    sRGB, and the shading is rendered without the encoding (the gain is then 1 in the equations).
+    Weighting each equation by the curve's slope at its pixel (residuals in display units) was tried and dropped: the deepest shading,
     which the model explains least well, then weighs most (phone-like clip: albedo MAE 0.071
     against 0.065, docs/fidelity.md)."""
     avatar, clip = problem.avatar, problem.clip
