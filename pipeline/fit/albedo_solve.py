@@ -238,9 +238,9 @@ def _observations(problem, shadows, batch_size, size, frames=None):
     default all). In the linear colour model (formats/colour_model.py) the equations hold in
     linear light: each pixel's colour is its frame's value over the exposure gain, decoded from
     sRGB, and the shading is rendered without the encoding (the gain is then 1 in the equations).
-    Weighting each equation by the curve's slope at its pixel (residuals in display units) was tried and dropped: the deepest shading,
-    which the model explains least well, then weighs most (phone-like clip: albedo MAE 0.071
-    against 0.065, docs/fidelity.md)."""
+    Weighting each equation by the curve's slope at its pixel (residuals in display units) was
+    tried and dropped: the deepest shading, which the model explains least well, then weighs most
+    (phone-like clip: albedo MAE 0.071 against 0.065, docs/fidelity.md)."""
     avatar, clip = problem.avatar, problem.clip
     appearance = dataclasses.replace(avatar.appearance(), albedo=torch.ones_like(avatar.albedo))
     sheen_only = Appearance(torch.zeros_like(avatar.albedo), appearance.normal_map)   # colour = the lobe's share
