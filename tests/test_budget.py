@@ -90,7 +90,7 @@ def test_the_keeper_returns_a_new_schedule_with_the_rates_the_fit_runs_at():
     from pipeline.fit.estimate import StepCosts, TimeLeft, remaining_plan
     from pipeline.fit.settings import settings_for
 
-    settings = settings_for("fast", 30, shadows="off", budget_seconds=610.0)
+    settings = settings_for("fast", 30, shadows="off", budget_seconds=610.0, steps=(200, 300, 200))
     planned = settings.schedule()
     state = FitState.fresh(planned, "off")
     time_left = TimeLeft(StepCosts({StepKind(kind): cost for kind, cost in COST.items()}, after_stages=10.0,

@@ -27,11 +27,11 @@ def test_a_schedule_is_a_frozen_value_and_changes_make_new_ones():
     planned = settings_for("fast", 30).schedule()
     assert [stage.kind for stage in planned] == [StageKind.ALIGN, StageKind.GEOMETRY, StageKind.JOINT,
                                                  StageKind.APPEARANCE]
-    assert [stage.steps for stage in planned] == [100, 200, 300, 200]
+    assert [stage.steps for stage in planned] == [100, 200, 300, 100]
     cut = planned.with_steps({StageKind.APPEARANCE: 50})
     capped = planned.capped(120)
-    assert cut.steps()[StageKind.APPEARANCE] == 50 and planned.steps()[StageKind.APPEARANCE] == 200
-    assert [stage.steps for stage in capped] == [100, 120, 120, 120]
+    assert cut.steps()[StageKind.APPEARANCE] == 50 and planned.steps()[StageKind.APPEARANCE] == 100
+    assert [stage.steps for stage in capped] == [100, 120, 120, 100]
     with pytest.raises(dataclasses.FrozenInstanceError):
         planned[0].steps = 1
     assert Schedule.from_list(cut.to_list()) == cut      # as a checkpoint stores it

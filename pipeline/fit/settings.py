@@ -23,7 +23,9 @@ class FitSettings:
     resolution: int = 256          # long side of the working images, pixels
     texture_size: int = 256
     batch_size: int = 6
-    steps: tuple = (200, 300, 200)  # geometry; geometry + appearance; appearance
+    # geometry; geometry + appearance; appearance (fast's: the albedo is solved after the stages, and the appearance
+    # stage's second hundred steps bought nothing beyond the seeds' spread: docs/performance.md)
+    steps: tuple = (200, 300, 100)
     align_steps: int = 100          # coarse alignment of every frame before the geometry stage
     # the alignment renders and compares its silhouettes this many times smaller than the working frames
     # (FitProblem.alignment_view): it renders every frame in every step, and 84% of its step was rendering. At 2,
@@ -190,9 +192,12 @@ PRESETS = {
     # two minutes")
     "preview": dict(resolution=160, texture_size=256, batch_size=10, steps=(20, 170, 0), align_steps=50,
                     environment="off", specular="off"),
-    "fast": dict(resolution=256, texture_size=256, batch_size=6, steps=(200, 300, 200), solve_resolution=448),
-    # fast's fit carried on to convergence: twice its steps after the alignment, the joint and appearance stages'
-    # rates falling to a tenth (at constant rates the poses wander once the fit has converged). Against fast, 3 seeds
+    # 100 appearance steps, not 200: the albedo is solved from the frames after the stages, and from the joint stage's
+    # end of 3 phone-like and 3 demo fits the second hundred moved held-out PSNR by -0.07 to +0.22 dB and new poses by
+    # -0.03 to +0.03 (the seeds' spread 0.2-0.5 dB), for 45-52 s (docs/performance.md, "The appearance stage halved")
+    "fast": dict(resolution=256, texture_size=256, batch_size=6, steps=(200, 300, 100), solve_resolution=448),
+    # fast's fit carried on to convergence: twice its steps after the alignment (as fast was until its appearance
+    # stage was halved: 400 appearance steps), the joint and appearance stages' rates falling to a tenth (at constant rates the poses wander once the fit has converged). Against fast, 3 seeds
     # each (docs/performance.md, "`full`: fast's fit carried to convergence"): held-out PSNR +0.22 dB on the
     # phone-like clip and +0.28 on the demo, fitted frames +0.4 / +0.7 dB, joints 8% lower on the phone-like clip
     # (level on the demo), new poses +0.8 dB in the overlap there (-0.3 on the demo, whose hand keeps MediaPipe's
