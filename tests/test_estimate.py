@@ -18,7 +18,7 @@ from pipeline.fit.settings import settings_for
 from pipeline.init import initialise_sequence
 from synth.motions import OPEN
 
-STAGES = settings_for("fast", 30).schedule()     # align 100, geometry 200, joint 300, appearance 200
+STAGES = settings_for("fast", 30, steps=(200, 300, 200)).schedule()     # align 100, geometry 200, joint 300, appearance 200
 ALIGN, GEOMETRY, JOINT, APPEARANCE = (StepKind(kind) for kind in StageKind if kind is not StageKind.HELD_OUT)
 JOINT_SHADOWS, APPEARANCE_SHADOWS = StepKind(StageKind.JOINT, True), StepKind(StageKind.APPEARANCE, True)
 
