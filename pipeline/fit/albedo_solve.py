@@ -392,8 +392,8 @@ class _NormalEquations:
         dtype, device = seen.shading.dtype, seen.shading.device
         count, pairs = size * size, len(PAIRS)
         # per cell: the pair sums x 3 channels, then 4 right-hand-side terms x 3, then 4 coverages
-        pair_sums, rhs_sums, coverages = slice(0, pairs * 3), slice(pairs * 3, pairs * 3 + 12), slice(pairs * 3 + 12,
-                                                                                                         None)
+        pair_sums, rhs_sums = slice(0, 3 * pairs), slice(3 * pairs, 3 * pairs + 12)
+        coverages = slice(3 * pairs + 12, None)
         cells = torch.zeros(count, pairs * 3 + 4 * 3 + 4, dtype=dtype, device=device)
         weighted = seen.shading * pixel_weight[:, None]
         buffer = torch.empty(min(PIXEL_CHUNK, len(seen.texels)), cells.shape[1], dtype=dtype, device=device)

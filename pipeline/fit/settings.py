@@ -197,11 +197,12 @@ PRESETS = {
     # -0.03 to +0.03 (the seeds' spread 0.2-0.5 dB), for 45-52 s (docs/performance.md, "The appearance stage halved")
     "fast": dict(resolution=256, texture_size=256, batch_size=6, steps=(200, 300, 100), solve_resolution=448),
     # fast's fit carried on to convergence: twice its steps after the alignment (as fast was until its appearance
-    # stage was halved: 400 appearance steps), the joint and appearance stages' rates falling to a tenth (at constant rates the poses wander once the fit has converged). Against fast, 3 seeds
-    # each (docs/performance.md, "`full`: fast's fit carried to convergence"): held-out PSNR +0.22 dB on the
-    # phone-like clip and +0.28 on the demo, fitted frames +0.4 / +0.7 dB, joints 8% lower on the phone-like clip
-    # (level on the demo), new poses +0.8 dB in the overlap there (-0.3 on the demo, whose hand keeps MediaPipe's
-    # size, 2.5% small); 1.5-1.8x fast's time on 30 frames
+    # stage was halved: 400 appearance steps), the joint and appearance stages' rates falling to a tenth (at constant
+    # rates the poses wander once the fit has converged). Against fast, 3 seeds each (docs/performance.md, "`full`:
+    # fast's fit carried to convergence"): held-out PSNR +0.22 dB on the phone-like clip and +0.28 on the demo,
+    # fitted frames +0.4 / +0.7 dB, joints 8% lower on the phone-like clip (level on the demo), new poses +0.8 dB in
+    # the overlap there (-0.3 on the demo, whose hand keeps MediaPipe's size, 2.5% small); 1.5-1.8x fast's time on
+    # 30 frames
     "full": dict(resolution=256, texture_size=256, batch_size=6, steps=(400, 600, 400), final_rate_fraction=0.1,
                  solve_resolution=448),
     # HARP's own schedule, to compare with the paper: 100 / 50 / 50 epochs over every frame, batches of ~18 frames
