@@ -245,6 +245,8 @@ def _observations(problem, shadows, batch_size, size, frames=None):
     appearance = dataclasses.replace(avatar.appearance(), albedo=torch.ones_like(avatar.albedo))
     sheen_only = Appearance(torch.zeros_like(avatar.albedo), appearance.normal_map)   # colour = the lobe's share
     facing_on = problem.settings.albedo_facing == "on"
+    # the least shading (of an albedo of 1) that carries colour, in the shading's units (the encoding is monotonic)
+    darkest = srgb_to_linear(torch.tensor(MIN_SHADING)).item() if avatar.linear_light else MIN_SHADING
     parts = []
     frames = torch.arange(len(problem.frames)) if frames is None else torch.as_tensor(frames, dtype=torch.long)
     for batch in frames.to(avatar.albedo.device).split(batch_size):
@@ -273,8 +275,7 @@ def _observations(problem, shadows, batch_size, size, frames=None):
             if occluded:   # the harmonics' light less what the hand keeps from the point (render/occlusion.py)
                 basis = basis - images["lost_light"][usable][..., 1:]
             shading = base + gain * (basis @ environment)
-        # an albedo of 1's values in the frame: the darkest carry no colour (the encoding is monotonic)
-        bright = shading.min(-1).values > (srgb_to_linear(torch.tensor(MIN_SHADING)).item() if linear else MIN_SHADING)
+        bright = shading.min(-1).values > darkest
         if specular is not None:
             # the lobe's highlight and its sheen of the room (at the light's environment as it stands: the
             # environment solve below does not move it)
