@@ -2,6 +2,7 @@
 import types
 
 import numpy as np
+import scipy.ndimage
 import pytest
 import torch
 
@@ -127,6 +128,19 @@ def test_photometric_loss_ignores_the_mask_border():
     assert losses.photometric_loss(rendered, image, mask).item() == 0.0
     rendered[:, 9, 9] += 0.36
     assert losses.photometric_loss(rendered, image, mask).item() == pytest.approx(0.36 / 36)
+
+
+def test_eroded_mask_is_scipys_binary_erosion_by_a_square():
+    """Against scipy.ndimage: random masks touching every border, radii 0-3; beyond the image
+    counts as inside (border_value=1)."""
+    generator = torch.Generator().manual_seed(4)
+    masks = (torch.rand(3, 17, 23, 1, generator=generator) > 0.2).double()
+    for pixels in range(4):
+        eroded = losses.eroded_mask(masks, pixels)
+        assert eroded.shape == masks.shape and eroded.dtype == masks.dtype
+        for mask, result in zip(masks.numpy()[..., 0] > 0.5, eroded.numpy()[..., 0]):
+            expected = scipy.ndimage.binary_erosion(mask, structure=np.ones((2 * pixels + 1,) * 2), border_value=1)
+            assert np.array_equal(result > 0.5, expected), pixels
 
 
 def test_the_problem_erodes_every_mask_once_as_the_photometric_term_would():
