@@ -59,6 +59,36 @@ def _term_weights(pairs):
     return weights
 
 
+def _stage_factors(items):
+    """{term name: {stage name: factor}} of `--stage-factor NAME@STAGE=FACTOR` arguments (None when
+    none is given); an unknown term or stage or a bad factor ends the command with one line."""
+    if not items:
+        return None
+    from .fit.energy_terms import ENERGY_TERMS
+    from .fit.schedule import StageKind
+
+    stages = [kind.value for kind in StageKind]
+    factors = {}
+    for item in items:
+        target, _, value = item.partition("=")
+        name, _, stage = target.partition("@")
+        if name not in ENERGY_TERMS:
+            raise SystemExit(f"harp fit: --stage-factor {item}: no energy term named {name!r}; the terms are "
+                             f"{', '.join(ENERGY_TERMS)}")
+        if stage not in stages:
+            raise SystemExit(f"harp fit: --stage-factor {item}: no stage named {stage!r} (NAME@STAGE=FACTOR); the "
+                             f"stages are {', '.join(stages)}")
+        try:
+            factor = float(value)
+        except ValueError:
+            raise SystemExit(f"harp fit: --stage-factor {item}: the factor must be a number (NAME@STAGE=FACTOR)") \
+                from None
+        if not factor >= 0:
+            raise SystemExit(f"harp fit: --stage-factor {item}: the factor must be 0 or more")
+        factors.setdefault(name, {})[stage] = factor
+    return factors
+
+
 def _fit(args):
     configure_threads(args.threads)
     from .fit import fit
@@ -66,6 +96,7 @@ def _fit(args):
     from .fit.progress import duration_text
 
     weights = _term_weights(args.weight)
+    stage_factors = _stage_factors(args.stage_factor)
     observers = []
     if args.curve:
         from .evaluate.curve import CurveRecorder
@@ -80,7 +111,8 @@ def _fit(args):
                  restart_lost_frames=args.restart_lost_frames, albedo_facing=args.albedo_facing,
                  light_search=args.light_search, solve_resolution=args.solve_resolution,
                  **({} if args.seed is None else {"seed": args.seed}),
-                 **({} if weights is None else {"weights": weights}))
+                 **({} if weights is None else {"weights": weights}),
+                 **({} if stage_factors is None else {"stage_factors": stage_factors}))
     wall = report.get("wall_seconds")
     took = f"{duration_text(wall)} ({report['total_seconds']:.0f} s in its stages)" if wall is not None else \
         f"{report['total_seconds']:.0f} s"
@@ -254,6 +286,10 @@ def build_parser():
     fit.add_argument("--weight", action="append", default=None, metavar="NAME=VALUE",
                      help="an energy term's weight (repeatable), e.g. size_prior=1 (the terms and their defaults: "
                           "pipeline/fit/energy_terms.py; 0 switches a term off)")
+    fit.add_argument("--stage-factor", action="append", default=None, metavar="NAME@STAGE=FACTOR",
+                     help="an energy term's weight in one kind of stage, times FACTOR (repeatable), e.g. "
+                          "size_prior@align=0 (the stages: align, geometry, geometry+appearance, appearance, "
+                          "held-out)")
     fit.add_argument("--resume", action="store_true", help="continue from the avatar folder's checkpoint")
     fit.add_argument("--progress", choices=("bar", "jsonl", "none"), default="bar", help=PROGRESS_HELP)
     fit.add_argument("--threads", type=int, metavar="N", help=THREADS_HELP)

@@ -89,6 +89,37 @@ def test_harp_fit_sets_term_weights_by_name_over_the_defaults(monkeypatch, capsy
             args.run(args)
 
 
+def test_harp_fit_sets_a_terms_factor_in_a_stage(monkeypatch):
+    import pipeline.fit
+
+    seen = []
+    monkeypatch.setattr(pipeline.fit, "fit", lambda *args, **options: seen.append(options) or
+                        {"total_seconds": 0.0, "metrics": {}})
+    monkeypatch.setattr("pipeline.fit.outputs.metrics_line", lambda metrics: "")
+    parser = build_parser()
+    for argv in (["fit", "seq", "--out", "a", "--stage-factor", "size_prior@align=0", "--stage-factor",
+                  "keypoint_anchor@geometry=0.5", "--stage-factor", "size_prior@geometry+appearance=2"],
+                 ["fit", "seq", "--out", "a"]):
+        args = parser.parse_args(argv)
+        args.run(args)
+    assert seen[0]["stage_factors"] == {"size_prior": {"align": 0.0, "geometry+appearance": 2.0},
+                                        "keypoint_anchor": {"geometry": 0.5}}
+    assert "stage_factors" not in seen[1]
+    for bad, said in (("no_such_term@align=1", "no energy term named 'no_such_term'"),
+                      ("size_prior@nowhere=1", "no stage named 'nowhere'"), ("size_prior=1", "no stage named ''"),
+                      ("size_prior@align=big", "a number"), ("size_prior@align=-1", "0 or more")):
+        args = parser.parse_args(["fit", "seq", "--out", "a", "--stage-factor", bad])
+        with pytest.raises(SystemExit, match=said):
+            args.run(args)
+    # as the fit's settings take them: the term's weight in that stage only
+    from pipeline.fit.energy_terms import ENERGY_TERMS
+    from pipeline.fit.schedule import StageKind
+    settings = settings_for("fast", 30, weights={"size_prior": 1.0}, stage_factors=seen[0]["stage_factors"])
+    size_prior = ENERGY_TERMS["size_prior"]
+    assert size_prior.weight_in(settings, StageKind.ALIGN) == 0.0
+    assert size_prior.weight_in(settings, StageKind.GEOMETRY) == 1.0
+
+
 def test_preview_of_the_left_hand(tmp_path):
     assert main(["model", "preview", "--side", "left", "--size", "120", "--out", str(tmp_path / "left.png")]) == 0
     right = tmp_path / "right.png"

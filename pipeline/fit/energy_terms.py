@@ -204,7 +204,8 @@ def _initial_size(problem):
 # and a fit can let it wander, which costs new poses about 1.5 dB per per cent (docs/performance.md); the
 # keypoints' metric bone lengths set it within 2-3% on the synthetic clips, and inside that band the
 # footage decides (held at the initial size itself, the proportions bent to make up for it). Off by default
-# (weight 0): on the demo clip's 3 seeds it cost 0.09-0.12 mm of joint error (docs/fidelity.md)
+# (weight 0): on the demo clip's 3 seeds it cost 0.09-0.12 mm of joint error, and 0.05-0.15 mm when off in the
+# alignment (docs/fidelity.md)
 @_term("size_prior", 0.0, _GEOMETRY, prepare=_initial_size)
 def _size_prior(batch):
     model = batch.problem.avatar.model
