@@ -9,7 +9,7 @@ from pipeline.handmodel.lbs import HandModel
 from pipeline.handmodel.poses import NAMED_POSES
 from pipeline.render import fused, rasterize, shading
 from pipeline.render.occlusion import lost_light
-from pipeline.render.renderer import OUTPUTS, Appearance, Light, RenderMesh, render
+from pipeline.render.renderer import OUTPUTS, Appearance, Light, RenderMesh, lobe_colour, render
 from render_meshes import intrinsics
 
 SIZE = 96
@@ -68,6 +68,41 @@ def test_fused_and_reference_paths_agree(hand_scene, light_per_frame):
     for name, grad in reference_grads.items():
         assert grad.abs().max() > 0, name
         assert torch.allclose(fused_grads[name], grad, atol=1e-5 * grad.abs().max(), rtol=0), name
+
+@pytest.mark.parametrize("light_per_frame", [False, True])
+def test_the_lobes_share_from_one_renders_outputs(hand_scene, light_per_frame):
+    """lobe_colour on a render's shading_normal, position, light_visibility and lost_light is the
+    lobe's share of rgb: what the same light gives an albedo of 0 (shadows, the room light's
+    occlusion, an environment light and a light per frame all on)."""
+    points, mesh, albedo, normal_map, K = hand_scene
+    generator = torch.Generator().manual_seed(11)
+    position = (torch.tensor([[0.25, -0.3, 0.1], [0.1, -0.2, 0.2]]) if light_per_frame
+                else torch.tensor([0.25, -0.3, 0.1])).double()
+    light = Light(position, torch.tensor(0.4, dtype=torch.float64), shadows=True, shadow_resolution=64,
+                  environment=0.1 * torch.randn(8, 3, generator=generator, dtype=torch.float64),
+                  specular=(torch.tensor(0.45, dtype=torch.float64), torch.tensor(0.5, dtype=torch.float64)),
+                  occlusion=lost_light(points, mesh.faces))
+    images = render(points, mesh, K, SIZE, SIZE, outputs=("rgb", "alpha", "shading_normal", "position",
+                                                          "light_visibility", "lost_light"),
+                    appearance=Appearance(albedo, normal_map), light=light, antialiased=False)
+    lobe_only = render(points, mesh, K, SIZE, SIZE, outputs=("rgb",), light=light, antialiased=False,
+                       appearance=Appearance(torch.zeros_like(albedo), normal_map))["rgb"]
+    covered = images["alpha"][..., 0] > 0.5
+    visibility = images["light_visibility"][covered]
+    assert covered.sum() > 1000 and visibility.min() < 0.5 and visibility.max() > 0.99    # some of it in shadow
+    lobe = lobe_colour(images["shading_normal"][covered], images["position"][covered], light,
+                       covered.nonzero()[:, 0], visibility, images["lost_light"][covered])
+    assert lobe.shape == (int(covered.sum()), 3) and lobe.max() > 0.02
+    assert torch.allclose(lobe, lobe_only[covered], atol=1e-12, rtol=0)
+    # the position is the surface's: it projects to its pixel's centre
+    pixels = covered.nonzero()
+    projected = torch.einsum("nij,nj->ni", K[pixels[:, 0]], images["position"][covered])
+    centres = torch.stack([pixels[:, 2], pixels[:, 1]], -1).double() + 0.5
+    assert torch.allclose(projected[:, :2] / projected[:, 2:], centres, atol=1e-6)
+    unshadowed = render(points, mesh, K, SIZE, SIZE, outputs=("rgb", "light_visibility"), light=Light(
+        position, torch.tensor(0.4, dtype=torch.float64)), appearance=Appearance(albedo))["light_visibility"]
+    assert torch.equal(unshadowed[covered], torch.ones_like(unshadowed[covered]))
+
 
 def test_fused_normals_and_tangents_are_the_references_at_every_vertex(hand_scene):
     """The sparse products give every vertex's normal, every UV vertex's tangent and every face's

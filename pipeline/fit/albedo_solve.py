@@ -50,7 +50,7 @@ import torch
 from ..formats.colour_model import linear_to_srgb, srgb_to_linear
 from ..formats.environment_light import relative_strength
 from ..render.rasterize import pixel_rays
-from ..render.renderer import Appearance, render
+from ..render.renderer import lobe_colour, render
 from ..render.shading import environment_basis_values, sphere_radiance_basis
 from ..render.texture import bilinear_texels
 
@@ -243,7 +243,6 @@ def _observations(problem, shadows, batch_size, size, frames=None):
     (phone-like clip: albedo MAE 0.071 against 0.065, docs/fidelity.md)."""
     avatar, clip = problem.avatar, problem.clip
     appearance = dataclasses.replace(avatar.appearance(), albedo=torch.ones_like(avatar.albedo))
-    sheen_only = Appearance(torch.zeros_like(avatar.albedo), appearance.normal_map)   # colour = the lobe's share
     facing_on = problem.settings.albedo_facing == "on"
     # the least shading (of an albedo of 1) that carries colour, in the shading's units (the encoding is monotonic)
     darkest = srgb_to_linear(torch.tensor(MIN_SHADING)).item() if avatar.linear_light else MIN_SHADING
@@ -255,8 +254,10 @@ def _observations(problem, shadows, batch_size, size, frames=None):
         environment, specular, linear = light.environment, light.specular, light.linear
         light = dataclasses.replace(light, linear=False)
         occluded = environment is not None and light.occlusion is not None
-        outputs = ("rgb", "uv", "alpha") + (() if environment is None else ("shading_normal",)) \
-            + (("lost_light",) if occluded else ()) + (("normal",) if facing_on else ())
+        lobe_lost = specular is not None and light.occlusion is not None   # the lobe's room sheen less the lost share
+        outputs = ("rgb", "uv", "alpha") + (() if environment is None and specular is None else ("shading_normal",)) \
+            + (("lost_light",) if occluded or lobe_lost else ()) + (("normal",) if facing_on else ()) \
+            + (() if specular is None else ("position", "light_visibility"))
         images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=outputs,
                         appearance=appearance, light=dataclasses.replace(light, environment=None, specular=None),
                         antialiased=False)
@@ -278,10 +279,12 @@ def _observations(problem, shadows, batch_size, size, frames=None):
         bright = shading.min(-1).values > darkest
         if specular is not None:
             # the lobe's highlight and its sheen of the room (at the light's environment as it stands: the
-            # environment solve below does not move it)
-            sheen = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=("rgb",),
-                           appearance=sheen_only, light=light, antialiased=False)["rgb"]
-            colour = colour - gain * sheen[usable]
+            # environment solve below does not move it), from this render's surface at the usable pixels (a
+            # second render of the lobe alone took 9 s of a 150-frame clip's 448 px solve)
+            sheen = lobe_colour(images["shading_normal"][usable], images["position"][usable], light,
+                                usable.nonzero()[:, 0], images["light_visibility"][usable],
+                                images["lost_light"][usable] if lobe_lost else None)
+            colour = colour - gain * sheen
         facing = _facing(images["normal"], clip.K[batch])[usable][bright] if facing_on else None
         parts.append((images["uv"][usable][bright], shading[bright], colour[bright])
                      + ((facing,) if facing_on else ())

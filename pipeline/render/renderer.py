@@ -26,7 +26,10 @@ from .interpolate import to_image
 from .texture import sample_texture
 from .vector_ops import normalized
 
-OUTPUTS = ("alpha", "rgb", "depth", "normal", "albedo", "uv", "shading_normal", "lost_light")
+OUTPUTS = ("alpha", "rgb", "depth", "normal", "albedo", "uv", "shading_normal", "lost_light", "position",
+           "light_visibility")
+# the outputs that come from the shading of the rgb output, and with it only
+SHADING_OUTPUTS = ("shading_normal", "lost_light", "position", "light_visibility")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,15 +120,19 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
     tensor or (B, H, W, 3) image, default black), depth (1, +inf where empty), normal (3,
     camera frame), albedo (3, unlit), uv (2, the texture coordinates seen, v up), shading_normal
     (3, the normal the light sees: the normal map's, camera frame; only with rgb), lost_light (9,
-    the light's `occlusion` interpolated; only with rgb and an occlusion). alpha and rgb
-    carry silhouette gradients when antialiased. fused=False takes the reference primitives
-    (the same images and gradients, slower: fused.py).
+    the light's `occlusion` interpolated; only with rgb and an occlusion), position (3, the
+    surface point, camera frame; only with rgb), light_visibility (1, the share of the point
+    light that reaches the point: its shadow test, 1 without shadows; only with rgb). With
+    shading_normal, position, light_visibility and lost_light, lobe_colour gives the specular
+    lobe's share of rgb at any pixel without a second render. alpha and rgb carry silhouette
+    gradients when antialiased. fused=False takes the reference primitives (the same images and
+    gradients, slower: fused.py).
     """
     unknown = set(outputs) - set(OUTPUTS)
     if unknown:
         raise ValueError(f"unknown render outputs {sorted(unknown)}; choose from {OUTPUTS}")
-    if {"shading_normal", "lost_light"} & set(outputs) and "rgb" not in outputs:
-        raise ValueError("the shading_normal and lost_light outputs come with rgb only")
+    if set(SHADING_OUTPUTS) & set(outputs) and "rgb" not in outputs:
+        raise ValueError(f"the {', '.join(SHADING_OUTPUTS)} outputs come with rgb only")
     if "lost_light" in outputs and (light is None or light.occlusion is None):
         raise ValueError("the lost_light output needs a light with an occlusion")
     ops = FUSED if fused else REFERENCE
@@ -171,11 +178,17 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
         lost = None
         if light.occlusion is not None:
             lost, = ops.interpolate_many([light.occlusion.to(points.dtype)], frags, faces)
-        colour = _lit_colour(ops, points, faces, frags, position, albedo, normal, light, lost)
+        visibility = _visibility(ops, points, faces, frags, position, light)
+        colour = _lit_colour(ops, frags, position, albedo, normal, light, visibility, lost)
         if "shading_normal" in outputs:
             result["shading_normal"] = to_image(normal, frags)
         if "lost_light" in outputs:
             result["lost_light"] = to_image(lost, frags)
+        if "position" in outputs:
+            result["position"] = to_image(position, frags)
+        if "light_visibility" in outputs:
+            seen = torch.ones_like(position[:, :1]) if visibility is None else visibility
+            result["light_visibility"] = to_image(seen, frags)
         layers.append(("rgb", colour, _background(background, points, height, width)))
     if "alpha" in outputs:
         ones = torch.ones(len(frags.pixel), 1, dtype=points.dtype, device=points.device)
@@ -189,31 +202,59 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
     return result
 
 
-def _lit_colour(ops, points, faces, frags, position, albedo, normal, light, lost=None):
-    """The colour of each fragment: `albedo` (linear already in linear light) lit, less the room
-    light the hand keeps from it (`lost`, (N, 9) interpolated lost_light, or None), encoded to sRGB
-    in linear light."""
-    light_position = light.position.to(points.dtype)
-    if light_position.dim() == 2:
-        light_position = light_position[frags.frame]
-    visibility = None
-    if light.shadows:
-        visibility = ops.shadow_visibility(points, faces, position, frags, light.position.to(points.dtype),
-                                           light.shadow_resolution, light.shadow_target, light.shadow_radius)
+def _visibility(ops, points, faces, frags, position, light):
+    """(N, 1) the point light's visibility at each fragment (its shadow test), None without shadows."""
+    if not light.shadows:
+        return None
+    return ops.shadow_visibility(points, faces, position, frags, light.position.to(points.dtype),
+                                 light.shadow_resolution, light.shadow_target, light.shadow_radius)
+
+
+def _light_position(light, dtype, frame):
+    """(N, 3) or (3,): the point light's position for fragments of frames `frame` (N,)."""
+    light_position = light.position.to(dtype)
+    return light_position[frame] if light_position.dim() == 2 else light_position
+
+
+def _lit_colour(ops, frags, position, albedo, normal, light, visibility=None, lost=None):
+    """The colour of each fragment: `albedo` (linear already in linear light) lit, the point light
+    seen as `visibility` says ((N, 1), None: unshadowed), less the room light the hand keeps from it
+    (`lost`, (N, 9) interpolated lost_light, or None), encoded to sRGB in linear light."""
+    light_position = _light_position(light, position.dtype, frags.frame)
     colour = ops.lit_colour(albedo, normal, position, light_position, light.ambient, visibility)
     if light.environment is not None:
         colour = colour + albedo * reference_shading.environment_shading(normal, light.environment)
     if lost is not None:
         colour = colour - albedo * room_occlusion.lost_shading(lost, light.ambient, light.environment, light.bounce)
     if light.specular is not None:
-        to_light = normalized(light_position - position)
-        to_camera = normalized(-position)   # the camera is the origin
-        sheen = reference_shading.specular_shading(normal, to_light, to_camera, *light.specular) * (1 - light.ambient)
-        colour = colour + (sheen if visibility is None else sheen * visibility)
-        # and the room's light in the lobe, less the share of the room the hand keeps from the point
-        room = reference_shading.room_specular(normal, to_camera, *light.specular, light.ambient, light.environment)
-        colour = colour + (room if lost is None else room * (1 - lost[:, :1]).clamp(min=0))
+        for part in _lobe_parts(normal, position, light_position, light, visibility, lost):
+            colour = colour + part
     return linear_to_srgb(colour) if light.linear else colour
+
+
+def lobe_colour(normal, position, light, frame, visibility=None, lost=None):
+    """(N, C) the specular lobe's share of the colour at N surface points (C = 1, or 3 with an
+    environment light), in the shading's units (not encoded): its highlight under the point light,
+    seen as `visibility` says ((N, 1), None: unshadowed), and its sheen of the room, less the share
+    of the room the hand keeps from the point (`lost`, (N, 9), or None). `normal` (N, 3) unit, the
+    shading normal, and `position` (N, 3) in the camera frame; `frame` (N,) each point's frame in
+    the batch (for a light placed per frame); `light` a Light with a lobe. The same numbers as the
+    lobe's share of render()'s rgb."""
+    highlight, room = _lobe_parts(normal, position, _light_position(light, position.dtype, frame), light,
+                                  visibility, lost)
+    return highlight + room
+
+
+def _lobe_parts(normal, position, light_position, light, visibility=None, lost=None):
+    """lobe_colour's two parts: the highlight under the point light, the sheen of the room (added
+    to the colour one after the other, so that rgb sums them as it always has)."""
+    to_light = normalized(light_position - position)
+    to_camera = normalized(-position)   # the camera is the origin
+    highlight = reference_shading.specular_shading(normal, to_light, to_camera, *light.specular) * (1 - light.ambient)
+    highlight = highlight if visibility is None else highlight * visibility
+    # and the room's light in the lobe, less the share of the room the hand keeps from the point
+    room = reference_shading.room_specular(normal, to_camera, *light.specular, light.ambient, light.environment)
+    return highlight, (room if lost is None else room * (1 - lost[:, :1]).clamp(min=0))
 
 
 def _covered(frags):
