@@ -98,7 +98,7 @@ def _final_solves(problem, fit):
     except RuntimeError as error:
         raise SystemExit(f"{fit} is not a fit of every frame of the sequence with fast's settings ({error})") from None
     kept = copy.deepcopy(problem.avatar.state_dict())
-    shadows = bool(saved.shadows.on)
+    shadows = bool(saved.state.shadows.on)
     figures = {"fit": str(fit), "fit_shadows": shadows, "fit_specular": problem.avatar.light().specular is not None}
     _, figures["final_solve_working_size"] = _timed(lambda: solve_avatar_albedo(problem, shadows))
     problem.avatar.load_state_dict(kept)

@@ -55,10 +55,12 @@ FINER_FRAME_PASSES = 1.4
 FINER_TEXTURE_SECONDS = 3.0
 
 
-# seconds per step at 256 px and batches of 6 (the alignment: per frame), measured on a 2-core CPU
-FALLBACK_COSTS = {StepKind(StageKind.ALIGN): 0.03, StepKind(StageKind.GEOMETRY): 0.5, StepKind(StageKind.JOINT): 1.1,
-                  StepKind(StageKind.JOINT, True): 1.4, StepKind(StageKind.APPEARANCE): 0.8,
-                  StepKind(StageKind.APPEARANCE, True): 1.1}
+# seconds per step at 256 px and batches of 6 (the alignment's: per frame, at 128 px, fast's 256 halved by
+# settings.align_downscale), on one core: the calibration of the 150-frame sun clip's one-core `fast` fit at e9b523a
+# (report.json's estimate); until then these were a 2-core machine's of an older renderer, two to six times higher
+FALLBACK_COSTS = {StepKind(StageKind.ALIGN): 0.005, StepKind(StageKind.GEOMETRY): 0.17, StepKind(StageKind.JOINT): 0.52,
+                  StepKind(StageKind.JOINT, True): 0.62, StepKind(StageKind.APPEARANCE): 0.47,
+                  StepKind(StageKind.APPEARANCE, True): 0.55}
 
 
 @dataclasses.dataclass
@@ -103,7 +105,7 @@ def fallback_costs(settings, frame_count) -> StepCosts:
     scale = (settings.batch_size / 6) * (settings.resolution / 256) ** 2
     seconds = {kind: cost * scale for kind, cost in FALLBACK_COSTS.items()}
     align = StepKind(StageKind.ALIGN)
-    seconds[align] = FALLBACK_COSTS[align] * frame_count * (settings.resolution / 256) ** 2
+    seconds[align] = FALLBACK_COSTS[align] * frame_count * (settings.resolution / settings.align_downscale / 128) ** 2
     return StepCosts(seconds, after_stages_seconds(seconds, settings, frame_count), calibrated=False)
 
 
