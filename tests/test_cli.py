@@ -53,7 +53,8 @@ def test_the_albedo_solve_is_on_unless_switched_off():
     assert not settings_for("fast", 10, solve_albedo=False).solve_albedo
 
 
-def test_harp_fit_passes_its_seed_to_the_fit_and_leaves_the_default_otherwise(monkeypatch):
+def _fit_options(monkeypatch, *argvs):
+    """[the options `harp fit` passes to fit()] for each command line, fit() itself stubbed."""
     import pipeline.fit
 
     seen = []
@@ -61,25 +62,23 @@ def test_harp_fit_passes_its_seed_to_the_fit_and_leaves_the_default_otherwise(mo
                         {"total_seconds": 0.0, "metrics": {}})
     monkeypatch.setattr("pipeline.fit.outputs.metrics_line", lambda metrics: "")
     parser = build_parser()
-    for argv in (["fit", "seq", "--out", "a", "--seed", "3"], ["fit", "seq", "--out", "a"]):
+    for argv in argvs:
         args = parser.parse_args(argv)
         args.run(args)
+    return seen
+
+
+def test_harp_fit_passes_its_seed_to_the_fit_and_leaves_the_default_otherwise(monkeypatch):
+    seen = _fit_options(monkeypatch, ["fit", "seq", "--out", "a", "--seed", "3"], ["fit", "seq", "--out", "a"])
     assert seen[0]["seed"] == 3 and "seed" not in seen[1]
 
 
 def test_harp_fit_sets_term_weights_by_name_over_the_defaults(monkeypatch, capsys):
-    import pipeline.fit
     from pipeline.fit.energy_terms import default_weights
 
-    seen = []
-    monkeypatch.setattr(pipeline.fit, "fit", lambda *args, **options: seen.append(options) or
-                        {"total_seconds": 0.0, "metrics": {}})
-    monkeypatch.setattr("pipeline.fit.outputs.metrics_line", lambda metrics: "")
+    seen = _fit_options(monkeypatch, ["fit", "seq", "--out", "a", "--weight", "size_prior=1", "--weight",
+                                      "texture=0.5"], ["fit", "seq", "--out", "a"])
     parser = build_parser()
-    for argv in (["fit", "seq", "--out", "a", "--weight", "size_prior=1", "--weight", "texture=0.5"],
-                 ["fit", "seq", "--out", "a"]):
-        args = parser.parse_args(argv)
-        args.run(args)
     assert seen[0]["weights"] == {**default_weights(), "size_prior": 1.0, "texture": 0.5}
     assert "weights" not in seen[1]
     for bad, said in (("no_such_term=1", "no energy term named 'no_such_term'"), ("size_prior=big", "a number"),
@@ -90,18 +89,10 @@ def test_harp_fit_sets_term_weights_by_name_over_the_defaults(monkeypatch, capsy
 
 
 def test_harp_fit_sets_a_terms_factor_in_a_stage(monkeypatch):
-    import pipeline.fit
-
-    seen = []
-    monkeypatch.setattr(pipeline.fit, "fit", lambda *args, **options: seen.append(options) or
-                        {"total_seconds": 0.0, "metrics": {}})
-    monkeypatch.setattr("pipeline.fit.outputs.metrics_line", lambda metrics: "")
+    seen = _fit_options(monkeypatch, ["fit", "seq", "--out", "a", "--stage-factor", "size_prior@align=0",
+                                      "--stage-factor", "keypoint_anchor@geometry=0.5", "--stage-factor",
+                                      "size_prior@geometry+appearance=2"], ["fit", "seq", "--out", "a"])
     parser = build_parser()
-    for argv in (["fit", "seq", "--out", "a", "--stage-factor", "size_prior@align=0", "--stage-factor",
-                  "keypoint_anchor@geometry=0.5", "--stage-factor", "size_prior@geometry+appearance=2"],
-                 ["fit", "seq", "--out", "a"]):
-        args = parser.parse_args(argv)
-        args.run(args)
     assert seen[0]["stage_factors"] == {"size_prior": {"align": 0.0, "geometry+appearance": 2.0},
                                         "keypoint_anchor": {"geometry": 0.5}}
     assert "stage_factors" not in seen[1]
