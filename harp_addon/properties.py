@@ -7,7 +7,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, Po
 # as pipeline/cli.PRESET_NOTES gives the measured figures (the add-on cannot import the fitting engine)
 PRESETS = [("preview", "Preview", "A first look in under 2 min for a 150-frame clip on 2 CPU cores: joint error "
                                   "5% and L1 9% above Fast's"),
-           ("fast", "Fast", "About 7 min for a 150-frame 448 px clip on 2 CPU cores, 8.5 on one"),
+           ("fast", "Fast", "About 7 min for a 150-frame 448 px clip on 2 CPU cores, 8 on one"),
            ("full", "Full", "Fast's fit carried to convergence, about 8-9 min for a 150-frame clip on 2 CPU "
                             "cores: the held-out frames 0.2-0.3 dB closer than Fast's"),
            ("paper", "Paper", "HARP's own schedule at 448 px, about 50 min for 150 frames, to compare with the "

@@ -206,7 +206,7 @@ def _demo(args):
 PRESET_NOTES = {
     "preview": "a first look in under 2 min for a 150-frame 448 px clip on 2 CPU cores (160 px, a short fit, HARP's "
                "light alone): joint error 5%% and L1 9%% above fast's",
-    "fast": "about 7 min for a 150-frame 448 px clip on 2 CPU cores, 8.5 on one",
+    "fast": "about 7 min for a 150-frame 448 px clip on 2 CPU cores, 8 on one",
     "full": "fast's fit carried to convergence, about 8-9 min for a 150-frame clip on 2 CPU cores: held-out "
             "PSNR +0.2-0.3 dB against fast's (3 seeds on two clips), joint error 8%% lower on the phone-like clip",
     "paper": "HARP's own schedule at 448 px, about 50 min for 150 frames, to compare with the paper: no better than "
