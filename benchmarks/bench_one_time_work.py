@@ -17,10 +17,10 @@ and in this order, as the fit first meets them:
 - `shadow_probe`: what `shadows auto` does besides (fitting._decide_shadows): the albedo solved
   from SHADOW_PROBE_FRAMES frames without and with shadows (the light held), and those frames'
   L1 in the masks each way.
-With --fit (a finished fit of every frame of SEQ, `harp fit SEQ --out FIT`): `final_solves`, the albedo solved again as the fit's last
-work does on that fit's avatar (its shadows as decided): from the frames at the working size with
-the room light, then at `solve_resolution` with the light held; the avatar's parameters are put
-back after each.
+With --fit (a finished fit of every frame of SEQ, `harp fit SEQ --out FIT`): the albedo solved
+again as the fit's last work does, on that fit's avatar (its shadows as decided): from the frames
+at the working size with the room light (`final_solve_working_size`), then at `solve_resolution`
+with the light held (`final_solve_finer`); the avatar's parameters are put back after each.
 Seconds of wall time; one JSON object, printed and written to --out. The figures in
 docs/performance.md ("The joint stage's time outside its steps") come from this script, run
 alone on the 150-frame sun clip.
@@ -35,7 +35,6 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 
@@ -71,8 +70,7 @@ def run(sequence, threads=1, fit=None):
     _, figures["background_plates"] = _timed(lambda: problem.clip.backgrounds)
     figures["background_plates_per_frame"] = figures["background_plates"] / len(problem.frames)
 
-    count = len(problem.frames)
-    probe = np.unique(np.linspace(0, count - 1, min(count, fitting.SHADOW_PROBE_FRAMES)).round().astype(int))
+    probe = fitting.shadow_probe_frames(len(problem.frames))
     with torch.no_grad():
         for shadows in (False, True):
             label = "with_shadows" if shadows else "without_shadows"
@@ -96,7 +94,8 @@ def _final_solves(problem, fit):
     try:
         problem.avatar.load_state_dict(saved.avatar)
     except RuntimeError as error:
-        raise SystemExit(f"{fit} is not a fit of every frame of the sequence with fast's settings ({error})") from None
+        raise SystemExit(f"{fit} is not a fit of every frame of the sequence with fast's settings "
+                         f"({error})") from None
     kept = copy.deepcopy(problem.avatar.state_dict())
     shadows = bool(saved.state.shadows.on)
     figures = {"fit": str(fit), "fit_shadows": shadows, "fit_specular": problem.avatar.light().specular is not None}

@@ -385,8 +385,7 @@ def _decide_shadows(problem, run, reporter):
     decision = run.state.shadows
     if decision.decided or run.stage.kind is not SHADOWS_DECIDED_IN or run.state.step < run.stage.steps // 2:
         return
-    count = len(problem.frames)
-    probe = np.unique(np.linspace(0, count - 1, min(count, SHADOW_PROBE_FRAMES)).round().astype(int))
+    probe = shadow_probe_frames(len(problem.frames))
     with torch.no_grad():
         without, with_shadows = (_probe_l1(problem, shadows, probe) for shadows in (False, True))
     decision.ambient_at_decision = problem.avatar.ambient.item()
@@ -396,6 +395,12 @@ def _decide_shadows(problem, run, reporter):
     reporter.log(f"shadows auto: L1 in the masks of {len(probe)} fitted frames {without:.4f} without self-shadowing, "
                  f"{with_shadows:.4f} with -> {'on' if decision.on else 'off'} (fitted ambient ratio "
                  f"{decision.ambient_at_decision:.2f})")
+
+
+def shadow_probe_frames(count) -> np.ndarray:
+    """The fitted frames (indices) the `auto` shadow decision renders: up to SHADOW_PROBE_FRAMES of
+    `count`, spread evenly over the clip."""
+    return np.unique(np.linspace(0, count - 1, min(count, SHADOW_PROBE_FRAMES)).round().astype(int))
 
 
 def _probe_l1(problem, shadows, probe):
