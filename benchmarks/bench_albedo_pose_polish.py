@@ -4,7 +4,8 @@
 
 The fit's work after the stages done again on its final state (fitting._after_the_stages: the
 albedo and room light solved from the working frames, then the albedo alone from the frames at
-`solve_resolution`, then the fill), with `--steps` joint-stage steps (stage_run.StageRun, the
+`solve_resolution`, then the fill; the frames the final surface leaves off their silhouettes left
+out, as the fit leaves them), with `--steps` joint-stage steps (stage_run.StageRun, the
 fit's own energy and rates) between the first solve and a second one: poses, light and exposure
 move, the solved albedo and normal map stay (and the shape, unless --move-shape). The fit's last
 pose steps ran against the albedo its gradient steps had made, blurrier than the solved one; these
@@ -32,6 +33,7 @@ from albedo_ceiling import problem_at  # noqa: E402
 from pipeline.evaluate.fidelity import evaluate_fidelity  # noqa: E402
 from pipeline.fit.albedo_solve import decided_texels, solve_avatar_albedo  # noqa: E402
 from pipeline.fit.checkpoint import FitState  # noqa: E402
+from pipeline.fit.lost_frames import frames_kept, frames_off_their_silhouettes  # noqa: E402
 from pipeline.fit.schedule import Schedule, StageKind, StageSpec  # noqa: E402
 from pipeline.fit.stage_run import StageRun  # noqa: E402
 from pipeline.fit.texture_fill import fill_avatar_albedo  # noqa: E402
@@ -46,7 +48,8 @@ def polished(fit, sequence, steps, move_shape=False, seed=0):
     problem, shadows = problem_at(fit, sequence, None)
     started = time.perf_counter()
     problem.avatar.measure_occlusion(exact=True)
-    solve_avatar_albedo(problem, shadows)
+    painting = frames_kept(frames_off_their_silhouettes(problem), len(problem.frames))   # as the fit leaves out
+    solve_avatar_albedo(problem, shadows, frames=painting)
     if steps:
         kept = problem.frozen
         problem.frozen = tuple(kept) + ("albedo", "normal_map") + (() if move_shape else SHAPE)
@@ -57,11 +60,11 @@ def polished(fit, sequence, steps, move_shape=False, seed=0):
             run.step()
         problem.frozen = kept
         problem.avatar.measure_occlusion(exact=True)
-        solve_avatar_albedo(problem, shadows)
+        solve_avatar_albedo(problem, shadows, frames=painting)
     seen = problem.at_resolution(problem.settings.solve_resolution)
     if seen is not problem:
-        solve_avatar_albedo(seen, shadows, solve_environment=False)
-    fill_avatar_albedo(problem.avatar, decided_texels(seen))
+        solve_avatar_albedo(seen, shadows, solve_environment=False, frames=painting)
+    fill_avatar_albedo(problem.avatar, decided_texels(seen, frames=painting))
     return problem.avatar, time.perf_counter() - started
 
 

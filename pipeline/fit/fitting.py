@@ -27,7 +27,7 @@ from .budget import BudgetKeeper
 from .estimate import FitEstimate, active_stages, measure_step_costs
 from .frames import held_out_frames, select_frames, validation_frames
 from .light_search import search_light
-from .lost_frames import LOST_IOU, anchor_restarted, frames_off_their_silhouettes, restart_lost_frames
+from .lost_frames import LOST_IOU, anchor_restarted, frames_kept, frames_off_their_silhouettes, restart_lost_frames
 from .outputs import masked_l1, write_outputs
 from .problem import FitError, FitProblem, build_problem
 from .progress import Progress, duration_text
@@ -440,10 +440,7 @@ def _painting_frames(problem, state, reporter):
                                zip(state.solve_left_out["frames"], state.solve_left_out["ious"]))
             reporter.log(f"albedo solve: frames the fit left off their silhouettes (IoU under {LOST_IOU}) "
                          f"left out: {listed}")
-    left_out = set(state.solve_left_out["indices"])
-    if not left_out:
-        return None
-    return [index for index in range(len(problem.frames)) if index not in left_out]
+    return frames_kept(state.solve_left_out, len(problem.frames))
 
 
 def _decide_environment(problem, state, reporter) -> bool:

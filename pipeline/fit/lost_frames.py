@@ -71,6 +71,13 @@ def frames_off_their_silhouettes(problem) -> dict:
             "ious": [round(float(ious[i]), 4) for i in off]}
 
 
+def frames_kept(left_out: dict, count: int):
+    """The indices of `count` fitted frames without those `left_out` lists (a
+    frames_off_their_silhouettes result); None where it lists none (every frame)."""
+    dropped = set(left_out["indices"])
+    return [index for index in range(count) if index not in dropped] if dropped else None
+
+
 @torch.no_grad()
 def restart_lost_frames(problem) -> dict:
     """Start the lost frames (module docstring) again from their neighbours, in place; returns
