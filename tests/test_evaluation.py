@@ -124,7 +124,7 @@ def test_the_held_out_protocols_start_from_the_neighbours_or_the_keypoints(held_
     """Frame 2 lies half-way between the fitted frames 1 and 3, frame 5 after the last fitted
     one (4): the neighbours protocol starts them there where their poses explain the frame
     better than the keypoints do (neighbours that give the true poses, against keypoints 5
-    degrees off); the keypoints protocol from init.npz."""
+    degrees off: their silhouettes cover the masks better); the keypoints protocol from init.npz."""
     from pipeline.formats.rotations import slerp_axis_angle
 
     out, _ = held_out_fit
@@ -141,7 +141,10 @@ def test_the_held_out_protocols_start_from_the_neighbours_or_the_keypoints(held_
                                atol=1e-6)
     keypoints = held_out.evaluate_held_out(found, tiny_clip, steps=0, device="cpu", protocol="keypoints")
     np.testing.assert_allclose(keypoints.avatar.pose.detach().numpy(), read_initial_estimate(tiny_clip).pose[[2, 5]])
-    assert np.all(np.array(result.metrics_before["psnr"]) > np.array(keypoints.metrics_before["psnr"]))
+    # the starts' silhouettes (measured: 0.94 from the neighbours, 0.77 from the keypoints); not their PSNR, which
+    # after this fit's 4 steps a stage is the untrained appearance's (7-8 dB either way, in either order by machine)
+    covered, from_keypoints = (np.array(r.metrics_before["silhouette_iou"]) for r in (result, keypoints))
+    assert np.all(covered > from_keypoints + 0.1)
     with pytest.raises(held_out.EvaluationError, match="protocol"):
         held_out.evaluate_held_out(out, tiny_clip, steps=0, device="cpu", protocol="truth")
 
@@ -161,8 +164,10 @@ def test_a_frame_whose_neighbours_point_the_wrong_way_starts_from_its_keypoints(
     np.testing.assert_allclose(matrix(result.avatar.global_orient.detach().numpy()[1]),
                                matrix(saved.avatar["global_orient"][3].numpy()), atol=1e-6)
     keypoints = held_out.evaluate_held_out(turned, tiny_clip, steps=0, device="cpu", protocol="keypoints")
-    assert result.metrics_before["psnr"][0] == pytest.approx(keypoints.metrics_before["psnr"][0], abs=1e-6)
-    assert result.metrics_before["psnr"][1] > keypoints.metrics_before["psnr"][1]
+    for name in ("psnr", "silhouette_iou"):     # frame 2: the keypoints protocol's start, the same render
+        assert result.metrics_before[name][0] == pytest.approx(keypoints.metrics_before[name][0], abs=1e-6)
+    # frame 5: its neighbour's pose, a better silhouette (PSNR: see the test above)
+    assert result.metrics_before["silhouette_iou"][1] > keypoints.metrics_before["silhouette_iou"][1] + 0.1
 
 
 def test_a_rollback_in_the_held_out_refinement_returns_to_the_chosen_start(held_out_fit, tiny_clip, tmp_path,
