@@ -110,6 +110,7 @@ def _fit(args):
                  specular=args.specular, colour_model=args.colour_model, occlusion=args.occlusion,
                  restart_lost_frames=args.restart_lost_frames, albedo_facing=args.albedo_facing,
                  light_search=args.light_search, solve_resolution=args.solve_resolution,
+                 size_anchor=args.size_anchor, size_tolerance=args.size_tolerance,
                  **({} if args.seed is None else {"seed": args.seed}),
                  **({} if weights is None else {"weights": weights}),
                  **({} if stage_factors is None else {"stage_factors": stage_factors}))
@@ -283,6 +284,13 @@ def build_parser():
                      help="the final albedo solve weighs each pixel by how squarely it sees the skin, so a texel "
                           "seen head-on somewhere is not coloured by its grazing views: on, or off (default: on one "
                           "phone-like seed it lost 0.3 dB held out, the albedo no nearer the truth; docs/fidelity.md)")
+    fit.add_argument("--size-anchor", choices=("initial", "alignment"), default=None,
+                     help="the size the size_prior term holds (when weighted, --weight size_prior=1): the initial "
+                          "estimate's (default), or the hand's where the alignment left it (the term silent in the "
+                          "alignment): one camera barely sees a hand's size, and the later stages drift along it "
+                          "(docs/fidelity.md)")
+    fit.add_argument("--size-tolerance", type=float, default=None, metavar="FRACTION",
+                     help="the size prior's free band around that size (default 0.03: +-3%%)")
     fit.add_argument("--weight", action="append", default=None, metavar="NAME=VALUE",
                      help="an energy term's weight (repeatable), e.g. size_prior=1 (the terms and their defaults: "
                           "pipeline/fit/energy_terms.py; 0 switches a term off)")

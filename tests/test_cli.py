@@ -88,6 +88,17 @@ def test_harp_fit_sets_term_weights_by_name_over_the_defaults(monkeypatch, capsy
             args.run(args)
 
 
+def test_harp_fit_sets_the_size_priors_anchor_and_band(monkeypatch):
+    seen = _fit_options(monkeypatch, ["fit", "seq", "--out", "a", "--size-anchor", "alignment", "--size-tolerance",
+                                      "0.01"], ["fit", "seq", "--out", "a"])
+    assert seen[0]["size_anchor"] == "alignment" and seen[0]["size_tolerance"] == 0.01
+    assert seen[1]["size_anchor"] is None and seen[1]["size_tolerance"] is None     # the settings' defaults
+    with pytest.raises(ValueError, match="size_anchor must be"):
+        settings_for("fast", 30, size_anchor="middle")
+    with pytest.raises(ValueError, match="size_tolerance must be"):
+        settings_for("fast", 30, size_tolerance=-0.01)
+
+
 def test_harp_fit_sets_a_terms_factor_in_a_stage(monkeypatch):
     seen = _fit_options(monkeypatch, ["fit", "seq", "--out", "a", "--stage-factor", "size_prior@align=0",
                                       "--stage-factor", "keypoint_anchor@geometry=0.5", "--stage-factor",

@@ -194,6 +194,42 @@ def test_the_size_prior_holds_the_hands_size_and_leaves_its_proportions_free(tin
     assert index_change[0.0] > 0.3 and index_change[1.0] > 0.5 * index_change[0.0]
 
 
+def test_the_size_prior_can_hold_the_size_where_the_alignment_left_it(tiny_clip, tmp_path, monkeypatch):
+    """size_anchor "alignment": the size is free in the alignment and held from its end on. A test
+    term pulls the shape towards a hand 15% larger in the alignment and 15% smaller after it:
+    unweighted, the size follows the second pull; weighted with no free band, it stays where the
+    alignment took it, which the report and the checkpoint's state keep."""
+    weights = settings_for("fast", 4).weights
+    model = HandModel.load("hand", "right", dtype=torch.float64)
+    start_betas = torch.as_tensor(read_initial_estimate(tiny_clip).betas, dtype=torch.float64)
+    start_size = float(model.size(start_betas))
+    larger, smaller = start_betas.clone(), start_betas.clone()
+    larger[0] += 3.0
+    smaller[0] -= 3.0
+
+    def _shape_pull(batch):
+        betas = batch.problem.avatar.betas
+        target = larger if batch.stage.kind is StageKind.ALIGN else smaller
+        return (betas - target.to(betas)).square().mean()
+
+    pull = EnergyTerm("shape_pull", 1.0, frozenset({StageKind.ALIGN, StageKind.GEOMETRY, StageKind.JOINT}), _shape_pull)
+    monkeypatch.setitem(ENERGY_TERMS, pull.name, pull)
+    sizes = {}
+    for weight in (0.0, 1.0):
+        out = tmp_path / f"anchor{weight:g}"
+        report = fitting.fit(tiny_clip, out, weights={**weights, "size_prior": weight}, size_anchor="alignment",
+                             size_tolerance=0.0, max_steps=25, lr_betas=0.05, **FIT)
+        saved = load_checkpoint(out / CHECKPOINT_FILE, "cpu")
+        sizes[weight] = (float(model.size(saved.avatar["betas"].to(torch.float64))), report["size_anchor"],
+                         saved.state.size_anchor)
+    free, held = sizes[0.0], sizes[1.0]
+    assert free[1] is None                                   # unweighted: nothing anchored
+    anchored = held[1]
+    assert anchored == held[2] and anchored / start_size - 1 > 0.05        # the alignment moved it freely
+    assert free[0] / anchored - 1 < -0.05                                  # the later pull, unheld
+    assert abs(held[0] / anchored - 1) < 0.01, (held, anchored)
+
+
 def test_the_size_prior_is_free_within_its_band_and_quadratic_in_per_cent_beyond():
     target = torch.tensor(0.05, dtype=torch.float64)
     for change, expected in ((0.0, 0.0), (0.029, 0.0), (-0.029, 0.0), (0.05, 4.0), (-0.05, 4.0), (0.10, 49.0)):

@@ -72,6 +72,7 @@ class FitState:
     specular: dict | None = None        # `auto` specular lobe, once decided: on, share, highlight, roughness, level
     restarted: dict | None = None       # lost_frames.restart_lost_frames' figures, once it has run (after the alignment)
     light_search: dict | None = None    # light_search.search_light's figures, once it has run (before the light moves)
+    size_anchor: float | None = None    # the size the size_prior term holds with size_anchor "alignment", once set
     after_stages_seconds: dict = dataclasses.field(default_factory=dict)   # the work after the stages, by part
     # {settings rate name ("lr_geometry", ...): factor}: the halvings of rollbacks so far, which the stages after the
     # one that rolled back start from (a rate 10x too high otherwise diverged again at the next stage's first step)

@@ -195,11 +195,15 @@ def _shape_prior(batch):
 
 
 def _initial_size(problem):
-    """The initial estimate's hand size (HandModel.size of its shape: from the keypoints' bone lengths)."""
-    return problem.avatar.model.size(_initial_betas(problem)).detach()
+    """The size the size prior holds: the initial estimate's hand size (HandModel.size of its shape:
+    from the keypoints' bone lengths), or with size_anchor "alignment" NaN until the fit sets, in
+    place, the size the alignment left (fitting.anchor_size; batch workers share the tensor)."""
+    size = problem.avatar.model.size(_initial_betas(problem)).detach()
+    return torch.full_like(size, float("nan")) if problem.settings.size_anchor == "alignment" else size
 
 
-# ours: the hand's overall size held within 3% of the initial estimate's (losses.SIZE_TOLERANCE), the other
+# ours: the hand's overall size held within 3% (settings.size_tolerance) of the initial estimate's or of where the
+# alignment left it (settings.size_anchor), the other
 # shape parameters free. One camera barely sees a hand's size (a larger hand farther away looks the same),
 # and a fit can let it wander, which costs new poses about 1.5 dB per per cent (docs/performance.md); the
 # keypoints' metric bone lengths set it within 2-3% on the synthetic clips, and inside that band the
@@ -208,8 +212,12 @@ def _initial_size(problem):
 # alignment (docs/fidelity.md)
 @_term("size_prior", 0.0, _GEOMETRY, prepare=_initial_size)
 def _size_prior(batch):
-    model = batch.problem.avatar.model
-    return losses.size_prior_loss(model.size(batch.problem.avatar.betas), batch.problem.term_data["size_prior"])
+    target = batch.problem.term_data["size_prior"]
+    betas = batch.problem.avatar.betas
+    if bool(target.isnan()):            # size_anchor "alignment", in the alignment: nothing held yet
+        return betas.new_zeros(())
+    return losses.size_prior_loss(batch.problem.avatar.model.size(betas), target,
+                                  batch.problem.settings.size_tolerance)
 
 
 # --- appearance

@@ -170,6 +170,8 @@ def _run(setup: FitSetup, job, out, observers, started):
         clock.observe(observers, "start", problem)
         for index in range(state.stage, len(state.schedule)):
             run = StageRun(problem, state.schedule[index], state, generator, optimiser_state)
+            if run.stage.kind is not StageKind.ALIGN:
+                anchor_size(problem, state)
             reporter.enter_stage(*_stage_number(state.schedule, index))
             if validator is not None and optimiser_state is None:   # a stage from its start
                 validator.new_stage()
@@ -207,6 +209,18 @@ def _run(setup: FitSetup, job, out, observers, started):
         clock.observe(observers, "end", problem)
     return write_outputs(out, problem, state, held_out, estimate=estimate.report(), validation_frames=validation,
                          elapsed=lambda: time.perf_counter() - started - (state.measure_seconds - measured_before))
+
+
+def anchor_size(problem, state):
+    """With size_anchor "alignment" and the size prior weighted: the size it holds from here on,
+    the hand's as the alignment left it (set at the first stage after it, kept in the state so
+    that a resumed fit holds the same)."""
+    if problem.settings.size_anchor != "alignment" or "size_prior" not in problem.term_data:
+        return
+    if state.size_anchor is None:
+        with torch.no_grad():
+            state.size_anchor = float(problem.avatar.model.size(problem.avatar.betas))
+    problem.term_data["size_prior"].fill_(state.size_anchor)
 
 
 def _restart_lost_frames(problem, state, reporter):

@@ -7,6 +7,7 @@ import math
 
 from ..formats import colour_model
 from .energy_terms import ENERGY_TERMS, default_weights
+from .losses import SIZE_TOLERANCE
 from .schedule import Schedule, StageKind
 
 # the default energy weights, one per registered term (energy_terms.py: Table C.1 and ours)
@@ -113,6 +114,13 @@ class FitSettings:
     #                                phone clip whole (on the 150-frame study clip, `fast` over all frames
     #                                against 60 of them: 4% more time, L1 0.0299 against 0.0333 and joint
     #                                error 2.12 against 3.21 mm: docs/performance.md)
+    # the size the size_prior term holds (energy_terms.py; off unless weighted): "initial", the initial estimate's
+    # (from the keypoints' bone lengths), or "alignment", the hand's size where the alignment left it (every frame's
+    # silhouettes at once), the term silent in the alignment itself. Along the fit a larger hand farther away looks
+    # the same, and the later stages' batches drift along that valley at a steady rate (phone-like seed 0: 0.2% off
+    # after the alignment, 2.3% small after the geometry stage, 4% large after the joint stage; docs/fidelity.md)
+    size_anchor: str = "initial"
+    size_tolerance: float = SIZE_TOLERANCE    # the size prior's free band around that size (a fraction)
     weights: dict = dataclasses.field(default_factory=default_weights)
     # {term: {stage name: factor}}: a term's weight in a stage, times this (energy_terms.EnergyTerm.stage_factors)
     stage_factors: dict = dataclasses.field(default_factory=dict)
@@ -129,6 +137,10 @@ class FitSettings:
             raise ValueError(f"restart_lost_frames must be 'on' or 'off', got {self.restart_lost_frames!r}")
         if self.light_search not in ("on", "off"):
             raise ValueError(f"light_search must be 'on' or 'off', got {self.light_search!r}")
+        if self.size_anchor not in ("initial", "alignment"):
+            raise ValueError(f"size_anchor must be 'initial' or 'alignment', got {self.size_anchor!r}")
+        if not 0 <= self.size_tolerance < 1:
+            raise ValueError(f"size_tolerance must be a fraction from 0 to 1, got {self.size_tolerance!r}")
         if self.albedo_facing not in ("on", "off"):
             raise ValueError(f"albedo_facing must be 'on' or 'off', got {self.albedo_facing!r}")
         if not isinstance(self.align_downscale, int) or self.align_downscale < 1:

@@ -1,0 +1,132 @@
+"""The fitted hand's size and depth along a fit, against a synthetic clip's truth: where a fit
+lets the size wander (one camera sees a larger hand farther away as it sees a smaller one nearer).
+
+    python benchmarks/bench_size_drift.py SEQ OUT [--seed S] [--fit-options JSON] [--every N]
+        [--threads T] [--picture PNG]
+    python benchmarks/bench_size_drift.py --replot OUT/size_drift.json --picture PNG
+
+Fits SEQ (a sequence folder with gt.npz and init.npz) with `fast`, every 5th frame held out, into
+OUT, and every N steps (default 20) records the scale that brings the fitted frames' 21 keypoints
+onto the true ones (each frame's spread about its centroid over the truth's, averaged: above 1,
+the fitted hand is small) and the mean depth error of those keypoints (mm, positive: too far).
+Writes OUT/size_drift.json (rows: stage index, stage name, step, scale, depth) and, with
+--picture, both against the fit's steps with the stages marked. `--fit-options`: FitSettings
+overrides as JSON, e.g. '{"weights": {"size_prior": 1}, "size_anchor": "alignment",
+"size_tolerance": 0}'.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def keypoint_scale_and_depth(problem, true_keypoints):
+    """(scale, depth mm) of the fitted frames' keypoints against the truth's (module docstring)."""
+    with torch.no_grad():
+        _, keypoints = problem.avatar.posed(problem.all_frames())
+    fitted = keypoints[:, :21].double().cpu()
+    truth = true_keypoints[torch.as_tensor(np.asarray(problem.frames))]
+    spread = lambda points: (points - points.mean(1, keepdim=True)).square().sum((1, 2)).sqrt()  # noqa: E731
+    scale = float((spread(truth) / spread(fitted)).mean())
+    depth = float((fitted[..., 2].mean(1) - truth[..., 2].mean(1)).mean() * 1000)
+    return scale, depth
+
+
+class SizeTrack:
+    """A fit observer (fitting.fit's `observers`) that records the size and depth every `every` steps."""
+
+    def __init__(self, true_keypoints, every):
+        self.true_keypoints, self.every, self.rows = true_keypoints, every, []
+
+    def _record(self, problem, state):
+        finished = state.stage >= len(state.schedule)     # the end: after the work that follows the stages
+        scale, depth = keypoint_scale_and_depth(problem, self.true_keypoints)
+        self.rows.append({"stage": int(state.stage), "stage_name": "end" if finished else state.schedule[state.stage].name,
+                          "step": int(state.step),
+                          "scale": round(scale, 5), "depth_mm": round(depth, 3)})
+
+    def start(self, problem, state):
+        self._record(problem, state)
+
+    def step(self, problem, state):
+        if state.step % self.every == 0:
+            self._record(problem, state)
+
+    def end(self, problem, state):
+        self._record(problem, state)
+
+
+def picture(rows, path, title):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [row for row in rows if row["stage_name"] != "end"]     # the end repeats the last stage's shape
+    offsets, total, x = {}, 0, []
+    for row in rows:                          # the steps laid end to end, stage after stage
+        if row["stage"] not in offsets:
+            offsets[row["stage"]] = total
+        total = max(total, offsets[row["stage"]] + row["step"])
+        x.append(offsets[row["stage"]] + row["step"])
+    figure, axes = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+    axes[0].plot(x, [row["scale"] for row in rows], marker=".")
+    axes[0].axhline(1.0, color="grey", linewidth=0.8)
+    axes[0].set_ylabel("truth's size / fit's")
+    axes[1].plot(x, [row["depth_mm"] for row in rows], marker=".", color="tab:red")
+    axes[1].axhline(0.0, color="grey", linewidth=0.8)
+    axes[1].set_ylabel("depth error, mm")
+    axes[1].set_xlabel("steps of the fit")
+    names = {row["stage"]: row["stage_name"] for row in rows}
+    for stage, start in offsets.items():
+        for axis in axes:
+            axis.axvline(start, color="lightgrey", linewidth=0.8, linestyle="--")
+        axes[0].annotate(names[stage], (start, 1.0), xytext=(3, 4), textcoords="offset points", fontsize=8)
+    axes[0].set_title(title, fontsize=9)
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("sequence", nargs="?", type=Path)
+    parser.add_argument("out", nargs="?", type=Path)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--fit-options", default="{}")
+    parser.add_argument("--every", type=int, default=20)
+    parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--picture", type=Path, default=None)
+    parser.add_argument("--replot", type=Path, default=None, help="draw the picture of a written size_drift.json")
+    args = parser.parse_args()
+    if args.replot:
+        written = json.loads(args.replot.read_text())
+        picture(written["rows"], args.picture, written["title"])
+        return
+    from pipeline.threads import configure_threads
+    configure_threads(args.threads)
+    from pipeline.fit.fitting import fit
+    from pipeline.formats import sequence_folder as seq
+
+    info = seq.read_sequence_info(args.sequence)
+    truth = seq.read_ground_truth(args.sequence / info.ground_truth)
+    track = SizeTrack(torch.as_tensor(np.asarray(truth.keypoints3d), dtype=torch.float64), args.every)
+    options = json.loads(args.fit_options)
+    fit(args.sequence, args.out, observers=(track,), seed=args.seed, hold_out_every=5, progress="bar", **options)
+    title = f"{args.sequence.name}, seed {args.seed}" + (f", {args.fit_options}" if options else "")
+    last_of_stage = {row["stage"]: row for row in track.rows}       # the start, then where each stage ended
+    for row in [track.rows[0], *last_of_stage.values()]:
+        print(f"{row['stage_name']:>20} step {row['step']:4d}: scale {row['scale']:.4f}, depth {row['depth_mm']:+.1f} mm")
+    (args.out / "size_drift.json").write_text(json.dumps({"title": title, "rows": track.rows}, indent=1))
+    if args.picture:
+        picture(track.rows, args.picture, title)
+
+
+if __name__ == "__main__":
+    main()
