@@ -1,7 +1,6 @@
 """The light searched over the sphere before it is fitted (fit/light_search.py): from a start
 behind the hand, an exact clip's light is found (its direction from the hand and its ambient
-ratio); a light already right is kept; the fit runs it once, reports it, and skips it when off; a
-light that needs an albedo above 1 scores what the avatar can draw under it."""
+ratio); a light already right is kept; the fit runs it once, reports it, and skips it when off."""
 import json
 
 import numpy as np
@@ -10,7 +9,7 @@ import torch
 
 from pipeline.evaluate.exact_clips import AMBIENT, LIGHT_POSITION, write_clip
 from pipeline.fit.fitting import fit
-from pipeline.fit.light_search import _residual, _texel_colours, search_light
+from pipeline.fit.light_search import search_light
 from pipeline.fit.problem import build_problem
 from pipeline.fit.settings import settings_for
 from pipeline.init import initialise_sequence
@@ -100,27 +99,3 @@ def test_the_fit_searches_once_before_the_light_moves_and_reports_it(clip, tmp_p
         return
     assert written["light_search"]["candidates"] == 257 and "residual" in written["light_search"]["before"]
     assert report["light_search"] == written["light_search"]
-
-
-def test_a_light_that_needs_albedo_above_one_scores_what_the_avatar_can_draw():
-    """One texel seen in two pixels (facing the camera; sideways) at albedo 0.9 under the light in
-    front (ambient 0.6): shading 1 and 0.6. A dim light from above and the side with ambient 0.15
-    shades them 0.5 and 0.3, in the same ratio, so in least squares it explains them exactly too, but
-    only with an albedo of 1.8. The avatar's albedo stops at 1: the search must score that light by
-    what the avatar can draw under it, worse than the true one."""
-    positions = torch.zeros(2, 3, dtype=torch.float64)
-    normals = torch.tensor([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0]], dtype=torch.float64)
-    texels = torch.zeros(2, dtype=torch.long)
-    colours = 0.9 * torch.tensor([[1.0], [0.6]], dtype=torch.float64).expand(2, 3)
-    far = 1e6
-    truth = torch.tensor([0.0, 0.0, -far], dtype=torch.float64)
-    up, side = (0.5 - 0.15) / 0.85, (0.3 - 0.15) / 0.85          # the dim light's cosines: shading 0.5, 0.3
-    dim = far * torch.tensor([side, (1 - side ** 2 - up ** 2) ** 0.5, -up], dtype=torch.float64)
-    _, shading, _ = _texel_colours(positions, normals, colours, texels, dim, 0.15)
-    assert torch.allclose(shading[:, 0], torch.tensor([0.5, 0.3], dtype=torch.float64), atol=1e-6)
-    assert float(_residual(positions, normals, colours, texels, truth, 0.6)) < 1e-12
-    colour, _, _ = _texel_colours(positions, normals, colours, texels, dim, 0.15)
-    assert torch.allclose(colour[0], torch.ones(3, dtype=torch.float64))    # 1.8, held at 1
-    # drawn at albedo 1 under the dim light: 0.5 and 0.3 against 0.9 and 0.54
-    expected = ((0.9 - 0.5) ** 2 + (0.54 - 0.3) ** 2) / (0.9 ** 2 + 0.54 ** 2)
-    assert float(_residual(positions, normals, colours, texels, dim, 0.15)) == pytest.approx(expected, rel=1e-6)

@@ -124,21 +124,15 @@ def _camera_points(depth, K):
 
 def _texel_colours(positions, normals, colours, texels, light, ambient):
     """((TEXELS * TEXELS, 3) each texel's colour in least squares under the shading
-    a + (1 - a) max(0, n . l) of a point light at `light` and ambient ratio a, within [0, 1], (N, 1)
-    that shading, (TEXELS * TEXELS,) bool: the texels some pixel shows).
-
-    The bound is the avatar's: its albedo cannot pass 1, so a light that explains the frames only
-    with brighter texels (a dim, far light with little ambient) must score what the avatar can draw
-    under it. Per texel and channel the least squares is one unknown, so clamping its solution is the
-    bounded solution exactly."""
+    a + (1 - a) max(0, n . l) of a point light at `light` and ambient ratio a, (N, 1) that shading,
+    (TEXELS * TEXELS,) bool: the texels some pixel shows)."""
     to_light = normalized(light - positions)
     shading = ambient + (1 - ambient) * dot3(normals, to_light).clamp(min=0)
     size = TEXELS * TEXELS
     numerator = torch.zeros(size, 3, dtype=colours.dtype, device=colours.device).index_add_(0, texels, colours * shading)
     denominator = torch.zeros(size, 1, dtype=colours.dtype, device=colours.device).index_add_(0, texels,
                                                                                               shading * shading)
-    colour_of_texel = (numerator / denominator.clamp(min=1e-12)).clamp(0, 1)
-    return colour_of_texel, shading, denominator[:, 0] > 0
+    return numerator / denominator.clamp(min=1e-12), shading, denominator[:, 0] > 0
 
 
 def _residual(positions, normals, colours, texels, light, ambient) -> torch.Tensor:
@@ -152,6 +146,7 @@ def _starting_albedo(avatar, colour_of_texel, _, seen):
     """(3, T, T) the avatar's starting albedo from the texels' colours (TEXELS * TEXELS, 3) where
     `seen`, their mean elsewhere, upsampled to the avatar's texture and, in the linear colour
     model, encoded to sRGB as the avatar keeps its albedo."""
+    colour_of_texel = colour_of_texel.clamp(0, 1)
     mean = colour_of_texel[seen].mean(0) if bool(seen.any()) else colour_of_texel.mean(0)
     grid = torch.where(seen[:, None], colour_of_texel, mean).t().reshape(3, TEXELS, TEXELS)
     size = avatar.albedo.shape[-1]
