@@ -194,30 +194,30 @@ def _shape_prior(batch):
     return losses.shape_prior_loss(batch.problem.avatar.betas, batch.problem.term_data["shape_prior"])
 
 
-def _initial_size(problem):
+def _size_target(problem):
     """The size the size prior holds: the initial estimate's hand size (HandModel.size of its shape:
-    from the keypoints' bone lengths), or with size_anchor "alignment" NaN until the fit sets, in
-    place, the size the alignment left (fitting.anchor_size; batch workers share the tensor)."""
+    from the keypoints' bone lengths), or with size_anchor "alignment" a placeholder (NaN, read by no
+    stage: the term is silent in the alignment) that the fit fills in place with the size the
+    alignment left (fitting.anchor_size; batch workers share the tensor)."""
     size = problem.avatar.model.size(_initial_betas(problem)).detach()
     return torch.full_like(size, float("nan")) if problem.settings.size_anchor == "alignment" else size
 
 
-# ours: the hand's overall size held within 3% (settings.size_tolerance) of the initial estimate's or of where the
-# alignment left it (settings.size_anchor), the other
-# shape parameters free. One camera barely sees a hand's size (a larger hand farther away looks the same),
-# and a fit can let it wander, which costs new poses about 1.5 dB per per cent (docs/performance.md); the
+# ours: the hand's overall size held within 3% (settings.size_tolerance) of the initial estimate's or of where
+# the alignment left it (settings.size_anchor), the other shape parameters free. One camera barely sees a hand's
+# size (a larger hand farther away looks the same), and a fit can let it wander, which costs new poses about 1.5 dB per per cent (docs/performance.md); the
 # keypoints' metric bone lengths set it within 2-3% on the synthetic clips, and inside that band the
 # footage decides (held at the initial size itself, the proportions bent to make up for it). Off by default
 # (weight 0): on the demo clip's 3 seeds it cost 0.09-0.12 mm of joint error, and 0.05-0.15 mm when off in the
 # alignment (docs/fidelity.md)
-@_term("size_prior", 0.0, _GEOMETRY, prepare=_initial_size)
+@_term("size_prior", 0.0, _GEOMETRY, prepare=_size_target)
 def _size_prior(batch):
-    target = batch.problem.term_data["size_prior"]
-    betas = batch.problem.avatar.betas
-    if bool(target.isnan()):            # size_anchor "alignment", in the alignment: nothing held yet
-        return betas.new_zeros(())
-    return losses.size_prior_loss(batch.problem.avatar.model.size(betas), target,
-                                  batch.problem.settings.size_tolerance)
+    problem = batch.problem
+    betas = problem.avatar.betas
+    if problem.settings.size_anchor == "alignment" and batch.stage.kind is StageKind.ALIGN:
+        return betas.new_zeros(())      # nothing held yet: the alignment sets the size
+    return losses.size_prior_loss(problem.avatar.model.size(betas), problem.term_data["size_prior"],
+                                  problem.settings.size_tolerance)
 
 
 # --- appearance
