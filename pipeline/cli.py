@@ -110,7 +110,7 @@ def _fit(args):
                  specular=args.specular, colour_model=args.colour_model, occlusion=args.occlusion,
                  restart_lost_frames=args.restart_lost_frames, albedo_facing=args.albedo_facing,
                  light_search=args.light_search, solve_resolution=args.solve_resolution,
-                 size_anchor=args.size_anchor, size_tolerance=args.size_tolerance,
+                 size_anchor=args.size_anchor, size_tolerance=args.size_tolerance, size_measure=args.size_measure,
                  **({} if args.seed is None else {"seed": args.seed}),
                  **({} if weights is None else {"weights": weights}),
                  **({} if stage_factors is None else {"stage_factors": stage_factors}))
@@ -291,6 +291,9 @@ def build_parser():
                           "(docs/fidelity.md)")
     fit.add_argument("--size-tolerance", type=float, default=None, metavar="FRACTION",
                      help="the size prior's free band around that size (default 0.03: +-3%%)")
+    fit.add_argument("--size-measure", choices=("hand", "palm"), default=None,
+                     help="what the size prior measures: the spread of all 21 keypoints (hand, default) or of the "
+                          "wrist and knuckles (palm: the fingers' lengths stay free; docs/fidelity.md)")
     fit.add_argument("--weight", action="append", default=None, metavar="NAME=VALUE",
                      help="an energy term's weight (repeatable), e.g. size_prior=1 (the terms and their defaults: "
                           "pipeline/fit/energy_terms.py; 0 switches a term off)")

@@ -17,6 +17,7 @@ from pipeline.fit.schedule import Schedule, StageKind, StageSpec
 from pipeline.fit.settings import settings_for
 from pipeline.formats.initial_estimate import read_initial_estimate
 from pipeline.fit.losses import SIZE_TOLERANCE, size_prior_loss
+from pipeline.formats.hand_model_file import PALM_KEYPOINT_NAMES
 from pipeline.handmodel.lbs import HandModel
 
 FIT = dict(progress="none", texture_size=64, batch_size=2, resolution=96, shadows="off", device="cpu",
@@ -230,6 +231,38 @@ def test_the_size_prior_can_hold_the_size_where_the_alignment_left_it(tiny_clip,
     assert abs(held[0] / anchored - 1) < 0.01, (held, anchored)
 
 
+def test_the_size_prior_measured_on_the_palm_leaves_the_fingers_lengths_free(tiny_clip, tmp_path, monkeypatch):
+    """size_measure "palm": held where the alignment left it, the palm's size does not stand in the
+    way of fingers that the later stages lengthen. A test term pulls every finger 12% longer after
+    the alignment: with the whole hand's size held, the scale shrinks to make room for them; with
+    the palm's held, the scale stays and the palm keeps its size."""
+    weights = settings_for("fast", 4).weights
+    model = HandModel.load("hand", "right", dtype=torch.float64)
+    start_betas = torch.as_tensor(read_initial_estimate(tiny_clip).betas, dtype=torch.float64)
+    longer = start_betas.clone()
+    longer[4:9] += 3.0                 # thumb, index, middle, ring and little finger: +12% each
+
+    def _finger_pull(batch):
+        if batch.stage.kind is StageKind.ALIGN:
+            return batch.problem.avatar.betas.new_zeros(())
+        betas = batch.problem.avatar.betas
+        return (betas[4:9] - longer[4:9].to(betas)).square().mean()
+
+    pull = EnergyTerm("finger_pull", 1.0, frozenset({StageKind.ALIGN, StageKind.GEOMETRY, StageKind.JOINT}), _finger_pull)
+    monkeypatch.setitem(ENERGY_TERMS, pull.name, pull)
+    fitted = {}
+    for measure in ("hand", "palm"):
+        out = tmp_path / measure
+        report = fitting.fit(tiny_clip, out, weights={**weights, "size_prior": 1.0}, size_anchor="alignment",
+                             size_tolerance=0.0, size_measure=measure, max_steps=25, lr_betas=0.05, **FIT)
+        betas = load_checkpoint(out / CHECKPOINT_FILE, "cpu").avatar["betas"].to(torch.float64)
+        fitted[measure] = (betas, float(model.size(betas, measure)) / report["size_anchor"] - 1)
+    (hand_betas, hand_held), (palm_betas, palm_held) = fitted["hand"], fitted["palm"]
+    assert abs(hand_held) < 0.01 and abs(palm_held) < 0.01            # each measure held where the alignment left it
+    assert float((palm_betas[4:9] - start_betas[4:9]).mean()) > 0.5   # the fingers lengthened
+    assert float(palm_betas[0] - hand_betas[0]) > 0.3, (palm_betas, hand_betas)   # the hand's size made room for them
+
+
 def test_the_size_prior_is_free_within_its_band_and_quadratic_in_per_cent_beyond():
     target = torch.tensor(0.05, dtype=torch.float64)
     for change, expected in ((0.0, 0.0), (0.029, 0.0), (-0.029, 0.0), (0.05, 4.0), (-0.05, 4.0), (0.10, 49.0)):
@@ -251,3 +284,17 @@ def test_the_hands_size_is_the_rms_spread_of_its_rest_keypoints():
     assert float(model.size(betas)) == pytest.approx(expected, rel=1e-12)
     betas[0] = 1.0
     assert float(model.size(betas)) == pytest.approx(1.05 * expected, rel=1e-6)
+
+
+def test_the_palms_size_is_the_spread_of_the_wrist_and_knuckles_and_ignores_the_fingers_lengths():
+    model = HandModel.load("hand", "right", dtype=torch.float64)
+    names = list(model.data.keypoint_names)
+    palm = torch.as_tensor(model.data.keypoints[[names.index(name) for name in PALM_KEYPOINT_NAMES]], dtype=torch.float64)
+    expected = float(np.sqrt(((palm - palm.mean(0)) ** 2).sum(1).mean()))
+    betas = torch.zeros(model.num_betas, dtype=torch.float64)
+    assert float(model.size(betas, "palm")) == pytest.approx(expected, rel=1e-12)
+    betas[4:9] = 2.0                   # every finger 8% longer: the palm as it was, the hand larger
+    assert float(model.size(betas, "palm")) == pytest.approx(expected, rel=1e-9)
+    assert float(model.size(betas, "hand")) > 1.02 * float(model.size(torch.zeros_like(betas)))
+    betas[0] = 1.0
+    assert float(model.size(betas, "palm")) == pytest.approx(1.05 * expected, rel=1e-6)

@@ -194,17 +194,23 @@ def _shape_prior(batch):
     return losses.shape_prior_loss(batch.problem.avatar.betas, batch.problem.term_data["shape_prior"])
 
 
+def measured_size(problem, betas):
+    """The size the size prior holds, of shape `betas`: HandModel.size of the part settings.size_measure names."""
+    return problem.avatar.model.size(betas, problem.settings.size_measure)
+
+
 def _size_target(problem):
-    """The size the size prior holds: the initial estimate's hand size (HandModel.size of its shape:
-    from the keypoints' bone lengths), or with size_anchor "alignment" a placeholder (NaN, read by no
+    """The size the size prior holds: the initial estimate's (measured_size of its shape: from the
+    keypoints' bone lengths), or with size_anchor "alignment" a placeholder (NaN, read by no
     stage: the term is silent in the alignment) that the fit fills in place with the size the
     alignment left (fitting.anchor_size; batch workers share the tensor)."""
-    size = problem.avatar.model.size(_initial_betas(problem)).detach()
+    size = measured_size(problem, _initial_betas(problem)).detach()
     return torch.full_like(size, float("nan")) if problem.settings.size_anchor == "alignment" else size
 
 
 # ours: the hand's overall size held within 3% (settings.size_tolerance) of the initial estimate's or of where
-# the alignment left it (settings.size_anchor), the other shape parameters free. One camera barely sees a hand's
+# the alignment left it (settings.size_anchor), the other shape parameters free; measured over the whole hand or
+# the palm alone (settings.size_measure). One camera barely sees a hand's
 # size (a larger hand farther away looks the same), and a fit can let it wander, which costs new poses about 1.5 dB per per cent (docs/performance.md); the
 # keypoints' metric bone lengths set it within 2-3% on the synthetic clips, and inside that band the
 # footage decides (held at the initial size itself, the proportions bent to make up for it). Off by default
@@ -213,10 +219,9 @@ def _size_target(problem):
 @_term("size_prior", 0.0, _GEOMETRY, prepare=_size_target)
 def _size_prior(batch):
     problem = batch.problem
-    betas = problem.avatar.betas
     if problem.settings.size_anchor == "alignment" and batch.stage.kind is StageKind.ALIGN:
-        return betas.new_zeros(())      # nothing held yet: the alignment sets the size
-    return losses.size_prior_loss(problem.avatar.model.size(betas), problem.term_data["size_prior"],
+        return problem.avatar.betas.new_zeros(())      # nothing held yet: the alignment sets the size
+    return losses.size_prior_loss(measured_size(problem, problem.avatar.betas), problem.term_data["size_prior"],
                                   problem.settings.size_tolerance)
 
 

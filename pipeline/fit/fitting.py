@@ -23,6 +23,7 @@ from ..formats.sequence_folder import validate_sequence_folder
 from .albedo_solve import decided_texels, solve_avatar_albedo, solved_albedo
 from .avatar import APPEARANCE, SHAPE, SWITCHES
 from .checkpoint import CHECKPOINT_FILE, CHECKPOINT_VERSION, Checkpoint, FitState, load_checkpoint, save_checkpoint
+from .energy_terms import measured_size
 from .budget import BudgetKeeper
 from .estimate import FitEstimate, active_stages, measure_step_costs
 from .frames import held_out_frames, select_frames, validation_frames
@@ -219,7 +220,7 @@ def anchor_size(problem, state):
         return
     if state.size_anchor is None:
         with torch.no_grad():
-            state.size_anchor = float(problem.avatar.model.size(problem.avatar.betas))
+            state.size_anchor = float(measured_size(problem, problem.avatar.betas))
     problem.term_data["size_prior"].fill_(state.size_anchor)
 
 

@@ -6,6 +6,7 @@ import dataclasses
 import math
 
 from ..formats import colour_model
+from ..handmodel.lbs import SIZE_KEYPOINTS
 from .energy_terms import ENERGY_TERMS, default_weights
 from .losses import SIZE_TOLERANCE
 from .schedule import Schedule, StageKind
@@ -121,6 +122,11 @@ class FitSettings:
     # after the alignment, 2.3% small after the geometry stage, 4% large after the joint stage; docs/fidelity.md)
     size_anchor: str = "initial"
     size_tolerance: float = SIZE_TOLERANCE    # the size prior's free band around that size (a fraction)
+    # what the size prior measures (HandModel.size's part): "hand", the spread of all 21 keypoints at rest, or
+    # "palm", of the wrist and the knuckles alone, which leaves the fingers' lengths to the footage. Held where the
+    # alignment left it, the hand's size kept the later stages from lengthening fingers the alignment had left short
+    # (joints 0.12 mm worse on 2 seeds of 2); the palm's let them (docs/fidelity.md)
+    size_measure: str = "hand"
     weights: dict = dataclasses.field(default_factory=default_weights)
     # {term: {stage name: factor}}: a term's weight in a stage, times this (energy_terms.EnergyTerm.stage_factors)
     stage_factors: dict = dataclasses.field(default_factory=dict)
@@ -139,6 +145,8 @@ class FitSettings:
             raise ValueError(f"light_search must be 'on' or 'off', got {self.light_search!r}")
         if self.size_anchor not in ("initial", "alignment"):
             raise ValueError(f"size_anchor must be 'initial' or 'alignment', got {self.size_anchor!r}")
+        if self.size_measure not in SIZE_KEYPOINTS:
+            raise ValueError(f"size_measure must be one of {', '.join(map(repr, SIZE_KEYPOINTS))}, got {self.size_measure!r}")
         if not 0 <= self.size_tolerance < 1:
             raise ValueError(f"size_tolerance must be a fraction from 0 to 1, got {self.size_tolerance!r}")
         if self.albedo_facing not in ("on", "off"):

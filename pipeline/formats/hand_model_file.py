@@ -56,6 +56,8 @@ KEYPOINT_NAMES = (
     "pinky_mcp", "pinky_pip", "pinky_dip", "pinky_tip",
 )
 ELBOW_KEYPOINT_NAME = "elbow"
+# the palm's keypoints: the wrist, the thumb's base and the four knuckles (what the fingers' lengths leave in place)
+PALM_KEYPOINT_NAMES = ("wrist", "thumb_cmc", "index_mcp", "middle_mcp", "ring_mcp", "pinky_mcp")
 
 PART_NAMES = ("palm", "thumb", "index", "middle", "ring", "pinky", "forearm", "wrist_cap")
 

@@ -18,6 +18,11 @@ from ..formats import hand_model_file as fmt
 from .rotations import axis_angle_to_matrix
 
 
+# the keypoints (MediaPipe order) whose spread HandModel.size measures, by part of the hand
+SIZE_KEYPOINTS = {"hand": list(range(len(fmt.KEYPOINT_NAMES))),
+                  "palm": [fmt.KEYPOINT_NAMES.index(name) for name in fmt.PALM_KEYPOINT_NAMES]}
+
+
 @dataclasses.dataclass
 class HandOutput:
     vertices: torch.Tensor        # (B, V, 3)
@@ -81,10 +86,12 @@ class HandModel(torch.nn.Module):
         keypoints = self.keypoints_template + torch.einsum("kcs,...s->...kc", self.keypoint_shapedirs, betas)
         return vertices, joints, keypoints
 
-    def size(self, betas):
+    def size(self, betas, part="hand"):
         """The hand's overall size for shape betas (S,) or (B, S): the RMS distance (metres) of its
-        21 hand keypoints at rest from their centroid (wrist, knuckles, joints and tips; no elbow)."""
-        keypoints = self.shaped(betas)[2][..., :21, :]
+        rest keypoints from their centroid, over the 21 hand keypoints (part "hand": wrist, knuckles,
+        joints and tips; no elbow) or the palm's six (part "palm": fmt.PALM_KEYPOINT_NAMES, which
+        the fingers' lengths leave in place)."""
+        keypoints = self.shaped(betas)[2][..., SIZE_KEYPOINTS[part], :]
         return (keypoints - keypoints.mean(-2, keepdim=True)).square().sum(-1).mean(-1).sqrt()
 
     def bone_transforms(self, joints, pose, global_orient, transl):
