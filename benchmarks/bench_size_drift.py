@@ -2,7 +2,7 @@
 lets the size wander (one camera sees a larger hand farther away as it sees a smaller one nearer).
 
     python benchmarks/bench_size_drift.py SEQ OUT [--seed S] [--fit-options JSON] [--every N]
-        [--threads T] [--picture PNG]
+        [--threads T] [--picture PNG] [--pulls N]
     python benchmarks/bench_size_drift.py --replot OUT/size_drift.json --picture PNG
 
 Fits SEQ (a sequence folder with gt.npz and init.npz) with `fast`, every 5th frame held out, into
@@ -10,7 +10,13 @@ OUT, and every N steps (default 20) records the scale that brings the fitted fra
 onto the true ones (each frame's spread about its centroid over the truth's, averaged: above 1,
 the fitted hand is small) and the mean depth error of those keypoints (mm, positive: too far).
 Writes OUT/size_drift.json (rows: stage index, stage name, step, scale, depth) and, with
---picture, both against the fit's steps with the stages marked. `--fit-options`: FitSettings
+--picture, both against the fit's steps with the stages marked.
+
+With --pulls N, every N steps of the geometry and joint stages it also prints (lines "PULL") and
+stores (OUT/size_pulls.json) each energy term's pull along the valley: the change of its weighted
+value over every fitted frame when the hand grows by 1% and moves 1% farther from the camera (the
+shape along the gradient of its size, each frame's translation so that its keypoints' centroid
+scales about the camera; a central difference of +-0.5%). Positive: the term resists the growth. `--fit-options`: FitSettings
 overrides as JSON, e.g. '{"weights": {"size_prior": 1}, "size_anchor": "alignment",
 "size_tolerance": 0}'.
 """
@@ -38,6 +44,85 @@ def keypoint_scale_and_depth(problem, true_keypoints):
     scale = float((spread(truth) / spread(fitted)).mean())
     depth = float((fitted[..., 2].mean(1) - truth[..., 2].mean(1)).mean() * 1000)
     return scale, depth
+
+
+def valley_step(problem, relative):
+    """(shape change, (F, 3) translation change) that grows the hand by `relative` and moves each
+    fitted frame `relative` farther along its line of sight (its keypoints' centroid scaled about
+    the camera), so that it looks nearly the same: the shape moves along the gradient of
+    HandModel.size."""
+    avatar = problem.avatar
+    frames = problem.all_frames()
+    with torch.enable_grad():
+        betas = avatar.betas.detach().clone().requires_grad_(True)
+        size = avatar.model.size(betas)
+        gradient, = torch.autograd.grad(size, betas)
+    shape_step = relative * float(size) * gradient / gradient.square().sum()
+    with torch.no_grad():
+        before = avatar.posed(frames)[1][:, :21].mean(1)
+        avatar.betas += shape_step
+        after = avatar.posed(frames)[1][:, :21].mean(1)
+        avatar.betas -= shape_step
+    return shape_step, (1 + relative) * before - after
+
+
+def term_values(problem, stage, chunk=6):
+    """{term: weighted value} of the stage's terms over every fitted frame (no self-shadowing; the
+    texture terms' random offsets drawn alike each time)."""
+    from pipeline.fit.energy import batch_energy
+    from pipeline.fit.energy_terms import terms_for
+
+    generator = torch.Generator().manual_seed(0)
+    frames = problem.all_frames()
+    weights = {term.name: term.weight_in(problem.settings, stage.kind) for term in terms_for(stage.kind, problem.settings, problem)}
+    values = {}
+    for part in frames.split(chunk):
+        _, terms = batch_energy(problem, stage, part, False, generator)
+        for name, value in terms.items():
+            values[name] = values.get(name, 0.0) + weights[name] * value * len(part) / len(frames)
+    return values
+
+
+def valley_pulls(problem, stage, relative=0.005):
+    """{term: change of its weighted value per 1% of growth along the valley (valley_step)}."""
+    avatar = problem.avatar
+    shape_step, translation_step = valley_step(problem, relative)
+    with torch.no_grad():
+        avatar.betas += shape_step
+        avatar.transl += translation_step
+        larger = term_values(problem, stage)
+        avatar.betas -= 2 * shape_step
+        avatar.transl -= 2 * translation_step
+        smaller = term_values(problem, stage)
+        avatar.betas += shape_step
+        avatar.transl += translation_step
+    return {name: (larger[name] - smaller[name]) / (2 * relative * 100) for name in larger}
+
+
+class ValleyPulls:
+    """A fit observer that every `every` steps of the geometry and joint stages records valley_pulls."""
+
+    def __init__(self, every):
+        self.every, self.rows = every, []
+
+    def start(self, problem, state):
+        pass
+
+    def end(self, problem, state):
+        pass
+
+    def step(self, problem, state):
+        from pipeline.fit.schedule import StageKind
+
+        if state.stage >= len(state.schedule) or state.step % self.every:
+            return
+        stage = state.schedule[state.stage]
+        if stage.kind not in (StageKind.GEOMETRY, StageKind.JOINT):
+            return
+        pulls = valley_pulls(problem, stage)
+        self.rows.append({"stage_name": stage.name, "step": int(state.step), "pulls": {k: round(v, 7) for k, v in pulls.items()}})
+        named = " ".join(f"{name}={value:+.1e}" for name, value in sorted(pulls.items(), key=lambda kv: kv[1]) if value)
+        print(f"PULL {stage.name} step {state.step}: total {sum(pulls.values()):+.1e}; {named}", flush=True)
 
 
 class SizeTrack:
@@ -104,6 +189,8 @@ def main():
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--picture", type=Path, default=None)
     parser.add_argument("--replot", type=Path, default=None, help="draw the picture of a written size_drift.json")
+    parser.add_argument("--pulls", type=int, default=0, metavar="N",
+                        help="every N steps of the geometry and joint stages, each term's pull along the valley")
     args = parser.parse_args()
     if args.replot:
         written = json.loads(args.replot.read_text())
@@ -118,12 +205,16 @@ def main():
     truth = seq.read_ground_truth(args.sequence / info.ground_truth)
     track = SizeTrack(torch.as_tensor(np.asarray(truth.keypoints3d), dtype=torch.float64), args.every)
     options = json.loads(args.fit_options)
-    fit(args.sequence, args.out, observers=(track,), seed=args.seed, hold_out_every=5, progress="bar", **options)
+    pulls = ValleyPulls(args.pulls) if args.pulls else None
+    fit(args.sequence, args.out, observers=(track,) + ((pulls,) if pulls else ()), seed=args.seed, hold_out_every=5,
+        progress="bar", **options)
     title = f"{args.sequence.name}, seed {args.seed}" + (f", {args.fit_options}" if options else "")
     last_of_stage = {row["stage"]: row for row in track.rows}       # the start, then where each stage ended
     for row in [track.rows[0], *last_of_stage.values()]:
         print(f"{row['stage_name']:>20} step {row['step']:4d}: scale {row['scale']:.4f}, depth {row['depth_mm']:+.1f} mm")
     (args.out / "size_drift.json").write_text(json.dumps({"title": title, "rows": track.rows}, indent=1))
+    if pulls:
+        (args.out / "size_pulls.json").write_text(json.dumps({"title": title, "rows": pulls.rows}, indent=1))
     if args.picture:
         picture(track.rows, args.picture, title)
 
