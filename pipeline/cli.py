@@ -291,9 +291,10 @@ def build_parser():
                           "(docs/fidelity.md)")
     fit.add_argument("--size-tolerance", type=float, default=None, metavar="FRACTION",
                      help="the size prior's free band around that size (default 0.03: +-3%%)")
-    fit.add_argument("--size-measure", choices=("hand", "palm"), default=None,
-                     help="what the size prior measures: the spread of all 21 keypoints (hand, default) or of the "
-                          "wrist and knuckles (palm: the fingers' lengths stay free; docs/fidelity.md)")
+    fit.add_argument("--size-measure", choices=("hand", "palm", "scale"), default=None,
+                     help="what the size prior measures: the spread of all 21 keypoints (hand, default), of the "
+                          "wrist and knuckles (palm: the fingers' lengths stay free), or the shape's scale parameter "
+                          "alone (scale: every proportion free; docs/fidelity.md)")
     fit.add_argument("--weight", action="append", default=None, metavar="NAME=VALUE",
                      help="an energy term's weight (repeatable), e.g. size_prior=1 (the terms and their defaults: "
                           "pipeline/fit/energy_terms.py; 0 switches a term off)")

@@ -231,11 +231,12 @@ def test_the_size_prior_can_hold_the_size_where_the_alignment_left_it(tiny_clip,
     assert abs(held[0] / anchored - 1) < 0.01, (held, anchored)
 
 
-def test_the_size_prior_measured_on_the_palm_leaves_the_fingers_lengths_free(tiny_clip, tmp_path, monkeypatch):
-    """size_measure "palm": held where the alignment left it, the palm's size does not stand in the
-    way of fingers that the later stages lengthen. A test term pulls every finger 12% longer after
-    the alignment: with the whole hand's size held, the scale shrinks to make room for them; with
-    the palm's held, the scale stays and the palm keeps its size."""
+def test_the_size_prior_measured_on_the_palm_or_the_scale_leaves_the_fingers_lengths_free(tiny_clip, tmp_path,
+                                                                                          monkeypatch):
+    """size_measure "palm" or "scale": held where the alignment left it, the palm's size or the
+    shape's scale parameter does not stand in the way of fingers that the later stages lengthen.
+    A test term pulls every finger 12% longer after the alignment: with the whole hand's size held,
+    the scale shrinks to make room for them; with the palm's or the scale held, it stays."""
     weights = settings_for("fast", 4).weights
     model = HandModel.load("hand", "right", dtype=torch.float64)
     start_betas = torch.as_tensor(read_initial_estimate(tiny_clip).betas, dtype=torch.float64)
@@ -248,19 +249,24 @@ def test_the_size_prior_measured_on_the_palm_leaves_the_fingers_lengths_free(tin
         betas = batch.problem.avatar.betas
         return (betas[4:9] - longer[4:9].to(betas)).square().mean()
 
+    def size(betas, measure):
+        if measure == "scale":         # the size of an average-proportioned hand at the shape's scale
+            return float(model.size(torch.cat([betas[:1], torch.zeros_like(betas[1:])])))
+        return float(model.size(betas, measure))
+
     pull = EnergyTerm("finger_pull", 1.0, frozenset({StageKind.ALIGN, StageKind.GEOMETRY, StageKind.JOINT}), _finger_pull)
     monkeypatch.setitem(ENERGY_TERMS, pull.name, pull)
     fitted = {}
-    for measure in ("hand", "palm"):
+    for measure in ("hand", "palm", "scale"):
         out = tmp_path / measure
         report = fitting.fit(tiny_clip, out, weights={**weights, "size_prior": 1.0}, size_anchor="alignment",
                              size_tolerance=0.0, size_measure=measure, max_steps=25, lr_betas=0.05, **FIT)
         betas = load_checkpoint(out / CHECKPOINT_FILE, "cpu").avatar["betas"].to(torch.float64)
-        fitted[measure] = (betas, float(model.size(betas, measure)) / report["size_anchor"] - 1)
-    (hand_betas, hand_held), (palm_betas, palm_held) = fitted["hand"], fitted["palm"]
-    assert abs(hand_held) < 0.01 and abs(palm_held) < 0.01            # each measure held where the alignment left it
-    assert float((palm_betas[4:9] - start_betas[4:9]).mean()) > 0.5   # the fingers lengthened
-    assert float(palm_betas[0] - hand_betas[0]) > 0.3, (palm_betas, hand_betas)   # the hand's size made room for them
+        assert abs(size(betas, measure) / report["size_anchor"] - 1) < 0.01, measure   # held where the alignment left it
+        fitted[measure] = betas
+    for measure in ("palm", "scale"):
+        assert float((fitted[measure][4:9] - start_betas[4:9]).mean()) > 0.5, measure    # the fingers lengthened
+        assert float(fitted[measure][0] - fitted["hand"][0]) > 0.3, fitted    # where the hand's size made room for them
 
 
 def test_the_size_prior_is_free_within_its_band_and_quadratic_in_per_cent_beyond():

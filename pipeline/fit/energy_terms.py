@@ -194,9 +194,20 @@ def _shape_prior(batch):
     return losses.shape_prior_loss(batch.problem.avatar.betas, batch.problem.term_data["shape_prior"])
 
 
+# what the size prior can measure (settings.size_measure): HandModel.size over the whole hand's keypoints or the
+# palm's, or the shape's scale parameter alone (the size of an average-proportioned hand at that scale)
+SIZE_MEASURES = ("hand", "palm", "scale")
+
+
 def measured_size(problem, betas):
-    """The size the size prior holds, of shape `betas`: HandModel.size of the part settings.size_measure names."""
-    return problem.avatar.model.size(betas, problem.settings.size_measure)
+    """The size the size prior holds, of shape `betas` (S,), as settings.size_measure measures it."""
+    model, measure = problem.avatar.model, problem.settings.size_measure
+    if measure == "scale":
+        scale_only = torch.zeros_like(betas)
+        index = model.data.shape_names.index("scale")
+        scale_only[index] = betas[index]
+        return model.size(scale_only)
+    return model.size(betas, measure)
 
 
 def _size_target(problem):

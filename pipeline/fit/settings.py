@@ -6,8 +6,7 @@ import dataclasses
 import math
 
 from ..formats import colour_model
-from ..handmodel.lbs import SIZE_KEYPOINTS
-from .energy_terms import ENERGY_TERMS, default_weights
+from .energy_terms import ENERGY_TERMS, SIZE_MEASURES, default_weights
 from .losses import SIZE_TOLERANCE
 from .schedule import Schedule, StageKind
 
@@ -145,8 +144,8 @@ class FitSettings:
             raise ValueError(f"light_search must be 'on' or 'off', got {self.light_search!r}")
         if self.size_anchor not in ("initial", "alignment"):
             raise ValueError(f"size_anchor must be 'initial' or 'alignment', got {self.size_anchor!r}")
-        if self.size_measure not in SIZE_KEYPOINTS:
-            raise ValueError(f"size_measure must be one of {', '.join(map(repr, SIZE_KEYPOINTS))}, got {self.size_measure!r}")
+        if self.size_measure not in SIZE_MEASURES:
+            raise ValueError(f"size_measure must be one of {', '.join(map(repr, SIZE_MEASURES))}, got {self.size_measure!r}")
         if not 0 <= self.size_tolerance < 1:
             raise ValueError(f"size_tolerance must be a fraction from 0 to 1, got {self.size_tolerance!r}")
         if self.albedo_facing not in ("on", "off"):
