@@ -3,7 +3,8 @@ lets the size wander (one camera sees a larger hand farther away as it sees a sm
 
     python benchmarks/bench_size_drift.py SEQ OUT [--seed S] [--fit-options JSON] [--every N]
         [--threads T] [--picture PNG] [--pulls N]
-    python benchmarks/bench_size_drift.py --replot OUT/size_drift.json --picture PNG
+    python benchmarks/bench_size_drift.py --replot OUT/size_drift.json [OUT2/size_drift.json ...] --picture PNG
+        [--labels A,B,...] [--title T]
 
 Fits SEQ (a sequence folder with gt.npz and init.npz) with `fast`, every 5th frame held out, into
 OUT, and every N steps (default 20) records the scale that brings the fitted frames' 21 keypoints
@@ -149,31 +150,37 @@ class SizeTrack:
         self._record(problem, state)
 
 
-def picture(rows, path, title):
+def picture(runs, path, title):
+    """Draw the size and the depth error of each run ({label: rows}) against the fit's steps, the
+    stages marked (those of the first run)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows = [row for row in rows if row["stage_name"] != "end"]     # the end repeats the last stage's shape
-    offsets, total, x = {}, 0, []
-    for row in rows:                          # the steps laid end to end, stage after stage
-        if row["stage"] not in offsets:
-            offsets[row["stage"]] = total
-        total = max(total, offsets[row["stage"]] + row["step"])
-        x.append(offsets[row["stage"]] + row["step"])
     figure, axes = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
-    axes[0].plot(x, [row["scale"] for row in rows], marker=".")
+    for label, rows in runs.items():
+        rows = [row for row in rows if row["stage_name"] != "end"]     # the end repeats the last stage's shape
+        offsets, total, x = {}, 0, []
+        for row in rows:                          # the steps laid end to end, stage after stage
+            if row["stage"] not in offsets:
+                offsets[row["stage"]] = total
+            total = max(total, offsets[row["stage"]] + row["step"])
+            x.append(offsets[row["stage"]] + row["step"])
+        axes[0].plot(x, [row["scale"] for row in rows], marker=".", label=label)
+        axes[1].plot(x, [row["depth_mm"] for row in rows], marker=".", label=label)
+        if len(axes[0].lines) == 1:              # the stages, from the first run
+            names = {row["stage"]: row["stage_name"] for row in rows}
+            for stage, start in offsets.items():
+                for axis in axes:
+                    axis.axvline(start, color="lightgrey", linewidth=0.8, linestyle="--")
+                axes[0].annotate(names[stage], (start, 1.0), xytext=(3, 4), textcoords="offset points", fontsize=8)
     axes[0].axhline(1.0, color="grey", linewidth=0.8)
     axes[0].set_ylabel("truth's size / fit's")
-    axes[1].plot(x, [row["depth_mm"] for row in rows], marker=".", color="tab:red")
     axes[1].axhline(0.0, color="grey", linewidth=0.8)
     axes[1].set_ylabel("depth error, mm")
     axes[1].set_xlabel("steps of the fit")
-    names = {row["stage"]: row["stage_name"] for row in rows}
-    for stage, start in offsets.items():
-        for axis in axes:
-            axis.axvline(start, color="lightgrey", linewidth=0.8, linestyle="--")
-        axes[0].annotate(names[stage], (start, 1.0), xytext=(3, 4), textcoords="offset points", fontsize=8)
+    if len(runs) > 1:
+        axes[1].legend(fontsize=7)
     axes[0].set_title(title, fontsize=9)
     figure.tight_layout()
     figure.savefig(path, dpi=110)
@@ -188,13 +195,21 @@ def main():
     parser.add_argument("--every", type=int, default=20)
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--picture", type=Path, default=None)
-    parser.add_argument("--replot", type=Path, default=None, help="draw the picture of a written size_drift.json")
+    parser.add_argument("--replot", type=Path, nargs="+", default=None,
+                        help="draw the picture of written size_drift.json files (several: in one picture, each "
+                             "labelled with its title or --labels)")
+    parser.add_argument("--labels", default=None, help="with --replot: each file's label, separated by commas")
+    parser.add_argument("--title", default=None, help="with --replot: the picture's title (default: the first file's)")
     parser.add_argument("--pulls", type=int, default=0, metavar="N",
                         help="every N steps of the geometry and joint stages, each term's pull along the valley")
     args = parser.parse_args()
     if args.replot:
-        written = json.loads(args.replot.read_text())
-        picture(written["rows"], args.picture, written["title"])
+        written = [json.loads(path.read_text()) for path in args.replot]
+        labels = args.labels.split(",") if args.labels else [run["title"] for run in written]
+        if len(labels) != len(written):
+            parser.error(f"--labels names {len(labels)} runs for {len(written)} files")
+        picture({label: run["rows"] for label, run in zip(labels, written)} if len(written) > 1 else {"": written[0]["rows"]},
+                args.picture, args.title or written[0]["title"])
         return
     from pipeline.threads import configure_threads
     configure_threads(args.threads)
@@ -216,7 +231,7 @@ def main():
     if pulls:
         (args.out / "size_pulls.json").write_text(json.dumps({"title": title, "rows": pulls.rows}, indent=1))
     if args.picture:
-        picture(track.rows, args.picture, title)
+        picture({"": track.rows}, args.picture, title)
 
 
 if __name__ == "__main__":
