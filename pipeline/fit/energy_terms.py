@@ -220,8 +220,8 @@ def _size_target(problem):
 
 
 # ours: the hand's overall size held within 3% (settings.size_tolerance) of the initial estimate's or of where
-# the alignment left it (settings.size_anchor), the other shape parameters free; measured over the whole hand or
-# the palm alone (settings.size_measure). One camera barely sees a hand's
+# the alignment left it (settings.size_anchor), the other shape parameters free; measured over the whole hand, the
+# palm alone or the shape's scale parameter alone (settings.size_measure). One camera barely sees a hand's
 # size (a larger hand farther away looks the same), and a fit can let it wander, which costs new poses about 1.5 dB per per cent (docs/performance.md); the
 # keypoints' metric bone lengths set it within 2-3% on the synthetic clips, and inside that band the
 # footage decides (held at the initial size itself, the proportions bent to make up for it). Off by default

@@ -121,10 +121,12 @@ class FitSettings:
     # after the alignment, 2.3% small after the geometry stage, 4% large after the joint stage; docs/fidelity.md)
     size_anchor: str = "initial"
     size_tolerance: float = SIZE_TOLERANCE    # the size prior's free band around that size (a fraction)
-    # what the size prior measures (HandModel.size's part): "hand", the spread of all 21 keypoints at rest, or
-    # "palm", of the wrist and the knuckles alone, which leaves the fingers' lengths to the footage. Held where the
-    # alignment left it, the hand's size kept the later stages from lengthening fingers the alignment had left short
-    # (joints 0.12 mm worse on 2 seeds of 2); the palm's let them (docs/fidelity.md)
+    # what the size prior measures (energy_terms.SIZE_MEASURES): "hand", the spread of all 21 keypoints at rest;
+    # "palm", of the wrist and the knuckles alone (the fingers' lengths free); "scale", the shape's scale parameter
+    # alone (every proportion free). What wanders in the later stages is the scale parameter, moved along while
+    # Adam fits its neighbours (the fingers' lengths); held where the alignment left it, on the phone-like clip's 3
+    # seeds: "scale" new poses +0.4-1.8 dB, surface 0.60-0.66 mm, joints level; "hand" and "palm" held the
+    # proportions back and cost the joints 0.06-0.16 mm (docs/fidelity.md)
     size_measure: str = "hand"
     weights: dict = dataclasses.field(default_factory=default_weights)
     # {term: {stage name: factor}}: a term's weight in a stage, times this (energy_terms.EnergyTerm.stage_factors)
