@@ -91,7 +91,9 @@ class HandModel(torch.nn.Module):
         rest keypoints from their centroid, over the 21 hand keypoints (part "hand": wrist, knuckles,
         joints and tips; no elbow) or the palm's six (part "palm": fmt.PALM_KEYPOINT_NAMES, which
         the fingers' lengths leave in place)."""
-        keypoints = self.shaped(betas)[2][..., SIZE_KEYPOINTS[part], :]
+        index = SIZE_KEYPOINTS[part]          # the keypoints alone: the fit weighs this in every step
+        keypoints = self.keypoints_template[index] + torch.einsum(
+            "kcs,...s->...kc", self.keypoint_shapedirs[index], betas.to(self.v_template.dtype))
         return (keypoints - keypoints.mean(-2, keepdim=True)).square().sum(-1).mean(-1).sqrt()
 
     def bone_transforms(self, joints, pose, global_orient, transl):
