@@ -285,16 +285,16 @@ def build_parser():
                           "seen head-on somewhere is not coloured by its grazing views: on, or off (default: on one "
                           "phone-like seed it lost 0.3 dB held out, the albedo no nearer the truth; docs/fidelity.md)")
     fit.add_argument("--size-anchor", choices=("initial", "alignment"), default=None,
-                     help="the size the size_prior term holds (when weighted, --weight size_prior=1): the initial "
-                          "estimate's (default), or the hand's where the alignment left it (the term silent in the "
-                          "alignment): one camera barely sees a hand's size, and the later stages drift along it "
-                          "(docs/fidelity.md)")
+                     help="the size the size_prior term holds: the hand's where the alignment left it (alignment, "
+                          "default; the term silent in the alignment), or the initial estimate's (initial; give it "
+                          "--size-tolerance 0.03): one camera barely sees a hand's size, and the later stages drift "
+                          "along it (docs/fidelity.md); --weight size_prior=0 lets it drift")
     fit.add_argument("--size-tolerance", type=float, default=None, metavar="FRACTION",
-                     help="the size prior's free band around that size (default 0.03: +-3%%)")
+                     help="the size prior's free band around that size (default 0: held there)")
     fit.add_argument("--size-measure", choices=("hand", "palm", "scale"), default=None,
-                     help="what the size prior measures: the spread of all 21 keypoints (hand, default), of the "
-                          "wrist and knuckles (palm: the fingers' lengths stay free), or the shape's scale parameter "
-                          "alone (scale: every proportion free; docs/fidelity.md)")
+                     help="what the size prior measures: the shape's scale parameter alone (scale, default: every "
+                          "proportion free), the spread of all 21 keypoints (hand), or of the wrist and knuckles "
+                          "(palm: the fingers' lengths stay free; docs/fidelity.md)")
     fit.add_argument("--weight", action="append", default=None, metavar="NAME=VALUE",
                      help="an energy term's weight (repeatable), e.g. size_prior=1 (the terms and their defaults: "
                           "pipeline/fit/energy_terms.py; 0 switches a term off)")

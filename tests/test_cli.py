@@ -89,12 +89,12 @@ def test_harp_fit_sets_term_weights_by_name_over_the_defaults(monkeypatch, capsy
 
 
 def test_harp_fit_sets_the_size_priors_anchor_and_band(monkeypatch):
-    seen = _fit_options(monkeypatch, ["fit", "seq", "--out", "a", "--size-anchor", "alignment", "--size-tolerance",
+    seen = _fit_options(monkeypatch, ["fit", "seq", "--out", "a", "--size-anchor", "initial", "--size-tolerance",
                                       "0.01", "--size-measure", "palm"], ["fit", "seq", "--out", "a"])
-    assert seen[0]["size_anchor"] == "alignment" and seen[0]["size_tolerance"] == 0.01
+    assert seen[0]["size_anchor"] == "initial" and seen[0]["size_tolerance"] == 0.01
     assert seen[0]["size_measure"] == "palm"
     assert seen[1]["size_anchor"] is None and seen[1]["size_tolerance"] is None     # the settings' defaults
-    assert seen[1]["size_measure"] is None and settings_for("fast", 30).size_measure == "hand"
+    assert seen[1]["size_measure"] is None and settings_for("fast", 30).size_measure == "scale"
     with pytest.raises(ValueError, match="size_measure must be"):
         settings_for("fast", 30, size_measure="fingers")
     with pytest.raises(ValueError, match="size_anchor must be"):

@@ -11,10 +11,10 @@ from synth_clips import exact_clip
 from pipeline.fit import fitting
 from pipeline.fit.checkpoint import CHECKPOINT_FILE, FitState, load_checkpoint
 from pipeline.fit.energy import batch_energy
-from pipeline.fit.energy_terms import ENERGY_TERMS, SHADED, EnergyTerm, terms_for
+from pipeline.fit.energy_terms import ENERGY_TERMS, SHADED, EnergyTerm, measured_size, terms_for
 from pipeline.fit.problem import build_problem
 from pipeline.fit.schedule import Schedule, StageKind, StageSpec
-from pipeline.fit.settings import settings_for
+from pipeline.fit.settings import FitSettings, settings_for
 from pipeline.formats.initial_estimate import read_initial_estimate
 from pipeline.fit.losses import SIZE_TOLERANCE, size_prior_loss
 from pipeline.formats.hand_model_file import PALM_KEYPOINT_NAMES
@@ -166,11 +166,11 @@ def test_the_shape_prior_holds_the_shape_near_the_initial_estimates(tiny_clip, t
 
 
 def test_the_size_prior_holds_the_hands_size_and_leaves_its_proportions_free(tiny_clip, tmp_path, monkeypatch):
-    """Off by default. A test term pulls the shape towards a larger hand with longer index
-    fingers: unweighted, the size grows with it; weighted, the size stays within the prior's free
-    band of the initial estimate's while the index finger still lengthens."""
+    """Anchored at the initial estimate's size, measured over the whole hand, with a free band. A
+    test term pulls the shape towards a larger hand with longer index fingers: unweighted, the size
+    grows with it; weighted, the size stays within the prior's free band of the initial estimate's
+    while the index finger still lengthens."""
     weights = settings_for("fast", 4).weights
-    assert weights["size_prior"] == 0.0
     model = HandModel.load("hand", "right", dtype=torch.float64)
     start_betas = torch.as_tensor(read_initial_estimate(tiny_clip).betas, dtype=torch.float64)
     start_size = float(model.size(start_betas))
@@ -187,7 +187,8 @@ def test_the_size_prior_holds_the_hands_size_and_leaves_its_proportions_free(tin
     size_change, index_change = {}, {}
     for weight in (0.0, 1.0):
         out = tmp_path / f"size{weight:g}"
-        fitting.fit(tiny_clip, out, weights={**weights, "size_prior": weight}, max_steps=25, lr_betas=0.05, **FIT)
+        fitting.fit(tiny_clip, out, weights={**weights, "size_prior": weight}, size_anchor="initial",
+                    size_tolerance=SIZE_TOLERANCE, size_measure="hand", max_steps=25, lr_betas=0.05, **FIT)
         betas = load_checkpoint(out / CHECKPOINT_FILE, "cpu").avatar["betas"].to(torch.float64)
         size_change[weight] = float(model.size(betas)) / start_size - 1
         index_change[weight] = float(betas[5] - start_betas[5])
@@ -196,11 +197,14 @@ def test_the_size_prior_holds_the_hands_size_and_leaves_its_proportions_free(tin
 
 
 def test_the_size_prior_can_hold_the_size_where_the_alignment_left_it(tiny_clip, tmp_path, monkeypatch):
-    """size_anchor "alignment": the size is free in the alignment and held from its end on. A test
-    term pulls the shape towards a hand 15% larger in the alignment and 15% smaller after it:
-    unweighted, the size follows the second pull; weighted with no free band, it stays where the
-    alignment took it, which the report and the checkpoint's state keep."""
-    weights = settings_for("fast", 4).weights
+    """size_anchor "alignment" (the default, with no free band): the size is free in the alignment
+    and held from its end on. A test term pulls the shape towards a hand 15% larger in the alignment
+    and 15% smaller after it: unweighted, the size follows the second pull; weighted, it stays where
+    the alignment took it, which the report and the checkpoint's state keep."""
+    defaults = settings_for("fast", 4)
+    assert (defaults.weights["size_prior"], defaults.size_anchor, defaults.size_tolerance, defaults.size_measure) \
+        == (1.0, "alignment", 0.0, "scale")
+    weights = defaults.weights
     model = HandModel.load("hand", "right", dtype=torch.float64)
     start_betas = torch.as_tensor(read_initial_estimate(tiny_clip).betas, dtype=torch.float64)
     start_size = float(model.size(start_betas))
@@ -218,8 +222,8 @@ def test_the_size_prior_can_hold_the_size_where_the_alignment_left_it(tiny_clip,
     sizes = {}
     for weight in (0.0, 1.0):
         out = tmp_path / f"anchor{weight:g}"
-        report = fitting.fit(tiny_clip, out, weights={**weights, "size_prior": weight}, size_anchor="alignment",
-                             size_tolerance=0.0, max_steps=25, lr_betas=0.05, **FIT)
+        report = fitting.fit(tiny_clip, out, weights={**weights, "size_prior": weight}, size_measure="hand",
+                             max_steps=25, lr_betas=0.05, **FIT)
         saved = load_checkpoint(out / CHECKPOINT_FILE, "cpu")
         sizes[weight] = (float(model.size(saved.avatar["betas"].to(torch.float64))), report["size_anchor"],
                          saved.state.size_anchor)
@@ -267,6 +271,40 @@ def test_the_size_prior_measured_on_the_palm_or_the_scale_leaves_the_fingers_len
     for measure in ("palm", "scale"):
         assert float((fitted[measure][4:9] - start_betas[4:9]).mean()) > 0.5, measure    # the fingers lengthened
         assert float(fitted[measure][0] - fitted["hand"][0]) > 0.3, fitted    # where the hand's size made room for them
+
+
+def test_the_size_prior_asked_for_outside_a_fit_holds_the_shape_where_it_stands(tiny_clip):
+    """An energy asked for in a later stage without fit()'s anchoring (a benchmark's replay, a
+    test) is finite: the size prior holds the size the shape has then, and pulls back a shape moved
+    off it."""
+    settings = settings_for("fast", 4, resolution=96, texture_size=64)
+    problem = build_problem(tiny_clip, settings, np.arange(4), "cpu")
+    stage = StageSpec(StageKind.JOINT, 1)
+    assert bool(problem.term_data["size_prior"].isnan())
+    _, terms = batch_energy(problem, stage, torch.arange(2), False, torch.Generator())
+    assert float(terms["size_prior"]) == 0.0
+    held = float(problem.term_data["size_prior"])
+    assert held == pytest.approx(float(measured_size(problem, problem.avatar.betas.detach())))
+    with torch.no_grad():
+        problem.avatar.betas[0] += 1.0      # the scale: 5% larger
+    _, terms = batch_energy(problem, stage, torch.arange(2), False, torch.Generator())
+    assert float(terms["size_prior"]) > 1.0 and float(problem.term_data["size_prior"]) == held
+
+
+def test_settings_saved_before_the_size_was_held_by_default_keep_the_size_prior_as_it_was():
+    """A checkpoint's settings from before the size prior existed (no weight for it, no anchor,
+    band or measure) load with it off and its old anchor, band and measure, so a resumed fit goes
+    on as it began; settings saved today keep the hold."""
+    held = settings_for("fast", 30)
+    older = {k: v for k, v in vars(held).items() if k not in ("size_anchor", "size_tolerance", "size_measure")}
+    older["weights"] = {k: v for k, v in held.weights.items() if k != "size_prior"}
+    loaded = FitSettings.from_dict(older)
+    assert (loaded.weights["size_prior"], loaded.size_anchor, loaded.size_tolerance, loaded.size_measure) == \
+        (0.0, "initial", SIZE_TOLERANCE, "hand")
+    assert loaded.weights["silhouette"] == held.weights["silhouette"]
+    again = FitSettings.from_dict(vars(held))
+    assert (again.weights["size_prior"], again.size_anchor, again.size_tolerance, again.size_measure) == \
+        (1.0, "alignment", 0.0, "scale")
 
 
 def test_the_size_prior_is_free_within_its_band_and_quadratic_in_per_cent_beyond():

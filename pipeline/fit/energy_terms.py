@@ -214,26 +214,32 @@ def _size_target(problem):
     """The size the size prior holds: the initial estimate's (measured_size of its shape: from the
     keypoints' bone lengths), or with size_anchor "alignment" a placeholder (NaN, read by no
     stage: the term is silent in the alignment) that the fit fills in place with the size the
-    alignment left (fitting.anchor_size; batch workers share the tensor)."""
+    alignment left (fitting.anchor_size; batch workers share the tensor), or the term itself with
+    the shape's size where an energy is asked for outside fit()."""
     size = measured_size(problem, _initial_betas(problem)).detach()
     return torch.full_like(size, float("nan")) if problem.settings.size_anchor == "alignment" else size
 
 
-# ours: the hand's overall size held within 3% (settings.size_tolerance) of the initial estimate's or of where
-# the alignment left it (settings.size_anchor), the other shape parameters free; measured over the whole hand, the
-# palm alone or the shape's scale parameter alone (settings.size_measure). One camera barely sees a hand's
-# size (a larger hand farther away looks the same), and a fit can let it wander, which costs new poses about 1.5 dB per per cent (docs/performance.md); the
-# keypoints' metric bone lengths set it within 2-3% on the synthetic clips, and inside that band the
-# footage decides (held at the initial size itself, the proportions bent to make up for it). Off by default
-# (weight 0): on the demo clip's 3 seeds it cost 0.09-0.12 mm of joint error, and 0.05-0.15 mm when off in the
-# alignment (docs/fidelity.md)
-@_term("size_prior", 0.0, _GEOMETRY, prepare=_size_target)
+# ours: the hand's size held where the alignment left it (settings.size_anchor; or at the initial estimate's,
+# from the keypoints' bone lengths, good to 2-3%), within a free band (settings.size_tolerance; default none),
+# measured by the shape's scale parameter alone (settings.size_measure; or over the whole hand or the palm). One
+# camera barely sees a hand's size (a larger hand farther away looks the same), and a fit can let it wander,
+# which costs new poses about 1.5 dB per per cent (docs/performance.md): the alignment sets it from every frame's
+# silhouettes at once, and the later stages' batches let the scale parameter wander while Adam fits the
+# proportions around it. Held (the default since 2026-11-29), 3 seeds each: on the phone-like clip new
+# poses +0.4-1.8 dB, surface 1.38/0.71/0.74 -> 0.63/0.60/0.66 mm, joints and held out level; on the demo new poses
+# +0.06-0.35 dB and surface 0.03-0.15 mm better, held out, joints and IoU within the seeds' spread
+# (docs/fidelity.md). Weight 0 lets it drift, as it did before.
+@_term("size_prior", 1.0, _GEOMETRY, prepare=_size_target)
 def _size_prior(batch):
     problem = batch.problem
     if problem.settings.size_anchor == "alignment" and batch.stage.kind is StageKind.ALIGN:
         return problem.avatar.betas.new_zeros(())      # nothing held yet: the alignment sets the size
-    return losses.size_prior_loss(measured_size(problem, problem.avatar.betas), problem.term_data["size_prior"],
-                                  problem.settings.size_tolerance)
+    size, target = measured_size(problem, problem.avatar.betas), problem.term_data["size_prior"]
+    if problem.settings.size_anchor == "alignment" and bool(target.isnan()):
+        # asked for outside fit() (whose stages anchor it first: fitting.anchor_size): held where the shape stands
+        target.fill_(float(size.detach()))
+    return losses.size_prior_loss(size, target, problem.settings.size_tolerance)
 
 
 # --- appearance

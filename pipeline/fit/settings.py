@@ -114,20 +114,21 @@ class FitSettings:
     #                                phone clip whole (on the 150-frame study clip, `fast` over all frames
     #                                against 60 of them: 4% more time, L1 0.0299 against 0.0333 and joint
     #                                error 2.12 against 3.21 mm: docs/performance.md)
-    # the size the size_prior term holds (energy_terms.py; off unless weighted): "initial", the initial estimate's
-    # (from the keypoints' bone lengths), or "alignment", the hand's size where the alignment left it (every frame's
-    # silhouettes at once), the term silent in the alignment itself. Along the fit a larger hand farther away looks
-    # the same, and the later stages' batches drift along that valley at a steady rate (phone-like seed 0: 0.2% off
-    # after the alignment, 2.3% small after the geometry stage, 4% large after the joint stage; docs/fidelity.md)
-    size_anchor: str = "initial"
-    size_tolerance: float = SIZE_TOLERANCE    # the size prior's free band around that size (a fraction)
-    # what the size prior measures (energy_terms.SIZE_MEASURES): "hand", the spread of all 21 keypoints at rest;
-    # "palm", of the wrist and the knuckles alone (the fingers' lengths free); "scale", the shape's scale parameter
-    # alone (every proportion free). What wanders in the later stages is the scale parameter, moved along while
-    # Adam fits its neighbours (the fingers' lengths); held where the alignment left it, on the phone-like clip's 3
-    # seeds: "scale" new poses +0.4-1.8 dB, surface 0.60-0.66 mm, joints level; "hand" and "palm" held the
-    # proportions back and cost the joints 0.06-0.16 mm (docs/fidelity.md)
-    size_measure: str = "hand"
+    # the size the size_prior term holds (energy_terms.py): "alignment", the default, the hand's size where the
+    # alignment left it (every frame's silhouettes at once), the term silent in the alignment itself; or "initial",
+    # the initial estimate's (from the keypoints' bone lengths, good to about 3%: give it that free band,
+    # losses.SIZE_TOLERANCE). Along the fit a larger hand farther away looks the same, and the later stages'
+    # batches drift along that valley (phone-like seed 0: 0.2% off after the alignment, 2.3% small after the
+    # geometry stage, 4% large after the joint stage; docs/fidelity.md)
+    size_anchor: str = "alignment"
+    size_tolerance: float = 0.0    # the size prior's free band around that size (a fraction): held exactly
+    # what the size prior measures (energy_terms.SIZE_MEASURES): "scale", the default, the shape's scale parameter
+    # alone (every proportion free); "hand", the spread of all 21 keypoints at rest; "palm", of the wrist and the
+    # knuckles alone (the fingers' lengths free). What wanders in the later stages is the scale parameter, moved
+    # along while Adam fits its neighbours (the fingers' lengths); held where the alignment left it, on the
+    # phone-like clip's 3 seeds: "scale" new poses +0.4-1.8 dB, surface 0.60-0.66 mm, joints level; "hand" and
+    # "palm" held the proportions back and cost the joints 0.06-0.16 mm (docs/fidelity.md)
+    size_measure: str = "scale"
     weights: dict = dataclasses.field(default_factory=default_weights)
     # {term: {stage name: factor}}: a term's weight in a stage, times this (energy_terms.EnergyTerm.stage_factors)
     stage_factors: dict = dataclasses.field(default_factory=dict)
@@ -197,6 +198,12 @@ class FitSettings:
         values.setdefault("restart_lost_frames", "off")   # saved before lost frames were started again
         values.setdefault("light_search", "off")          # saved before the light was searched
         values.setdefault("align_downscale", 1)           # saved before the alignment rendered smaller
+        # saved before the size was held by default: the size prior as it was then (weight 0 unless asked for)
+        values.setdefault("size_anchor", "initial")
+        values.setdefault("size_tolerance", SIZE_TOLERANCE)
+        values.setdefault("size_measure", "hand")
+        if "weights" in values and "size_prior" not in values["weights"]:
+            values["weights"] = {**values["weights"], "size_prior": 0.0}
         unknown = sorted(set(values) - {field.name for field in dataclasses.fields(cls)})
         if unknown:
             raise ValueError(f"settings this version does not know: {', '.join(unknown)}")
