@@ -14,6 +14,7 @@ from pipeline.fit.energy import batch_energy
 from pipeline.fit.energy_terms import ENERGY_TERMS, SHADED, EnergyTerm, measured_size, terms_for
 from pipeline.fit.problem import build_problem
 from pipeline.fit.schedule import Schedule, StageKind, StageSpec
+from pipeline.fit.stage_run import StageRun
 from pipeline.fit.settings import FitSettings, settings_for
 from pipeline.formats.initial_estimate import read_initial_estimate
 from pipeline.fit.losses import SIZE_TOLERANCE, size_prior_loss
@@ -273,21 +274,24 @@ def test_the_size_prior_measured_on_the_palm_or_the_scale_leaves_the_fingers_len
         assert float(fitted[measure][0] - fitted["hand"][0]) > 0.3, fitted    # where the hand's size made room for them
 
 
-def test_the_size_prior_asked_for_outside_a_fit_holds_the_shape_where_it_stands(tiny_clip):
-    """An energy asked for in a later stage without fit()'s anchoring (a benchmark's replay, a
-    test) is finite: the size prior holds the size the shape has then, and pulls back a shape moved
-    off it."""
+def test_a_later_stage_run_outside_a_fit_holds_the_size_where_the_shape_stands(tiny_clip):
+    """A joint-stage run started without a fit before it (a benchmark's replay, the step costs'
+    calibration, a test) anchors the size prior itself: its energy is finite, the size held is the
+    one the shape has then, and a shape moved off it is pulled back."""
     settings = settings_for("fast", 4, resolution=96, texture_size=64)
     problem = build_problem(tiny_clip, settings, np.arange(4), "cpu")
-    stage = StageSpec(StageKind.JOINT, 1)
+    schedule = settings.schedule()
+    stage = next(stage for stage in schedule if stage.kind is StageKind.JOINT)
     assert bool(problem.term_data["size_prior"].isnan())
-    _, terms = batch_energy(problem, stage, torch.arange(2), False, torch.Generator())
+    run = StageRun(problem, stage, FitState.fresh(schedule, "off"), torch.Generator().manual_seed(0))
+    _, terms = run.energy(torch.arange(2), backward=False)
     assert float(terms["size_prior"]) == 0.0
     held = float(problem.term_data["size_prior"])
     assert held == pytest.approx(float(measured_size(problem, problem.avatar.betas.detach())))
+    assert run.state.size_anchor == held
     with torch.no_grad():
         problem.avatar.betas[0] += 1.0      # the scale: 5% larger
-    _, terms = batch_energy(problem, stage, torch.arange(2), False, torch.Generator())
+    _, terms = run.energy(torch.arange(2), backward=False)
     assert float(terms["size_prior"]) > 1.0 and float(problem.term_data["size_prior"]) == held
 
 

@@ -213,9 +213,8 @@ def measured_size(problem, betas):
 def _size_target(problem):
     """The size the size prior holds: the initial estimate's (measured_size of its shape: from the
     keypoints' bone lengths), or with size_anchor "alignment" a placeholder (NaN, read by no
-    stage: the term is silent in the alignment) that the fit fills in place with the size the
-    alignment left (fitting.anchor_size; batch workers share the tensor), or the term itself with
-    the shape's size where an energy is asked for outside fit()."""
+    stage: the term is silent in the alignment) that a later stage's run fills in place with the
+    size the alignment left (stage_run.anchor_size; batch workers share the tensor)."""
     size = measured_size(problem, _initial_betas(problem)).detach()
     return torch.full_like(size, float("nan")) if problem.settings.size_anchor == "alignment" else size
 
@@ -235,11 +234,8 @@ def _size_prior(batch):
     problem = batch.problem
     if problem.settings.size_anchor == "alignment" and batch.stage.kind is StageKind.ALIGN:
         return problem.avatar.betas.new_zeros(())      # nothing held yet: the alignment sets the size
-    size, target = measured_size(problem, problem.avatar.betas), problem.term_data["size_prior"]
-    if problem.settings.size_anchor == "alignment" and bool(target.isnan()):
-        # asked for outside fit() (whose stages anchor it first: fitting.anchor_size): held where the shape stands
-        target.fill_(float(size.detach()))
-    return losses.size_prior_loss(size, target, problem.settings.size_tolerance)
+    return losses.size_prior_loss(measured_size(problem, problem.avatar.betas), problem.term_data["size_prior"],
+                                  problem.settings.size_tolerance)
 
 
 # --- appearance

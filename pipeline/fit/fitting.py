@@ -23,7 +23,6 @@ from ..formats.sequence_folder import validate_sequence_folder
 from .albedo_solve import decided_texels, solve_avatar_albedo, solved_albedo
 from .avatar import APPEARANCE, SHAPE, SWITCHES
 from .checkpoint import CHECKPOINT_FILE, CHECKPOINT_VERSION, Checkpoint, FitState, load_checkpoint, save_checkpoint
-from .energy_terms import measured_size
 from .budget import BudgetKeeper
 from .estimate import FitEstimate, active_stages, measure_step_costs
 from .frames import held_out_frames, select_frames, validation_frames
@@ -171,8 +170,6 @@ def _run(setup: FitSetup, job, out, observers, started):
         clock.observe(observers, "start", problem)
         for index in range(state.stage, len(state.schedule)):
             run = StageRun(problem, state.schedule[index], state, generator, optimiser_state)
-            if run.stage.kind is not StageKind.ALIGN:
-                anchor_size(problem, state)
             reporter.enter_stage(*_stage_number(state.schedule, index))
             if validator is not None and optimiser_state is None:   # a stage from its start
                 validator.new_stage()
@@ -210,18 +207,6 @@ def _run(setup: FitSetup, job, out, observers, started):
         clock.observe(observers, "end", problem)
     return write_outputs(out, problem, state, held_out, estimate=estimate.report(), validation_frames=validation,
                          elapsed=lambda: time.perf_counter() - started - (state.measure_seconds - measured_before))
-
-
-def anchor_size(problem, state):
-    """With size_anchor "alignment" and the size prior weighted: the size it holds from here on,
-    the hand's as the alignment left it (set at the first stage after it, kept in the state so
-    that a resumed fit holds the same)."""
-    if problem.settings.size_anchor != "alignment" or "size_prior" not in problem.term_data:
-        return
-    if state.size_anchor is None:
-        with torch.no_grad():
-            state.size_anchor = float(measured_size(problem, problem.avatar.betas))
-    problem.term_data["size_prior"].fill_(state.size_anchor)
 
 
 def _restart_lost_frames(problem, state, reporter):

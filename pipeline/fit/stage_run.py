@@ -17,8 +17,9 @@ import torch
 from .avatar import APPEARANCE, PER_FRAME, POSE
 from .checkpoint import FitState
 from .energy import batch_energy
+from .energy_terms import measured_size
 from .problem import FitProblem
-from .schedule import StageSpec
+from .schedule import StageKind, StageSpec
 
 ROLLBACK_EVERY = 20       # steps between the snapshots a rollback returns to
 ALIGN_CHUNK_FRAMES = 32   # frames of the unsubdivided mesh rendered at once in a full batch
@@ -109,12 +110,26 @@ def stage_has_work(problem: FitProblem, stage: StageSpec) -> bool:
     return stage.steps > 0 and bool(parameter_groups(problem, stage))
 
 
+def anchor_size(problem, state):
+    """With size_anchor "alignment" and the size prior weighted: the size it holds in the stages
+    after the alignment, the hand's as the alignment left it (set when the first of them starts,
+    kept in the state so that a resumed fit holds the same)."""
+    if problem.settings.size_anchor != "alignment" or "size_prior" not in problem.term_data:
+        return
+    if state.size_anchor is None:
+        with torch.no_grad():
+            state.size_anchor = float(measured_size(problem, problem.avatar.betas))
+    problem.term_data["size_prior"].fill_(state.size_anchor)
+
+
 class StageRun:
     """Steps of one stage over a problem; `optimiser_state` resumes a stage stopped midway."""
 
     def __init__(self, problem: FitProblem, stage: StageSpec, state: FitState, generator: torch.Generator,
                  optimiser_state=None):
         self.problem, self.stage, self.state, self.generator = problem, stage, state, generator
+        if stage.kind in (StageKind.GEOMETRY, StageKind.JOINT):
+            anchor_size(problem, state)
         groups = parameter_groups(problem, stage)
         for group in groups:    # rates that rollbacks of earlier stages halved stay halved (FitState.rate_factors)
             group["lr"] = group["base_lr"] = group["base_lr"] * state.rate_factors.get(group["rate"], 1.0)
