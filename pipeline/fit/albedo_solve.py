@@ -53,7 +53,6 @@ from ..render.rasterize import pixel_rays
 from ..render.renderer import lobe_colour, render
 from ..render.shading import environment_basis_values, sphere_radiance_basis
 from ..render.texture import bilinear_texels
-from . import frame_registration as registration
 
 MIN_COVERAGE = 1.0      # bilinear weight (about one pixel's worth) a texel needs to be solved
 MIN_SHADING = 0.05      # pixels darker than this (shading of an albedo of 1) carry no colour
@@ -93,14 +92,6 @@ class _Observations:
     gain: torch.Tensor | None = None
     basis: torch.Tensor | None = None
     facing: torch.Tensor | None = None
-    frame: torch.Tensor | None = None      # (N,) long: the pixel's frame (index into the problem's frames)
-    place: torch.Tensor | None = None      # (N, 2): its (row, column) in that frame
-
-    def subset(self, keep):
-        """These observations at the rows `keep` (N,) bool only."""
-        return dataclasses.replace(self, **{field.name: getattr(self, field.name)[keep]
-                                            for field in dataclasses.fields(self)
-                                            if getattr(self, field.name) is not None})
 
     def pixel_weights(self, weights=None):
         """(N,) the solve's weight of each pixel: `weights` (default 1) times its facing, when on."""
@@ -179,13 +170,6 @@ def _solved_in_shading_space(problem, shadows, batch_size, current, solve_enviro
         for _ in range(ENVIRONMENT_ROUNDS):
             environment = _solved_environment(seen, albedo, uniform, ambient)
             seen = seen.under_environment(environment)
-            first = _NormalEquations(size, seen, uniform)
-            albedo, solved = first.solve(current, ANCHOR * first.data_weight(), start=albedo)
-    if problem.settings.albedo_registration == "on":
-        unregistered = seen
-        for _ in range(registration.ROUNDS):
-            seen, _ = registration.registered_observations(problem, unregistered, albedo)
-            uniform = seen.pixel_weights()
             first = _NormalEquations(size, seen, uniform)
             albedo, solved = first.solve(current, ANCHOR * first.data_weight(), start=albedo)
     prior = None
@@ -302,16 +286,14 @@ def _observations(problem, shadows, batch_size, size, frames=None):
                                 images["lost_light"][usable] if lobe_lost else None)
             colour = colour - gain * sheen
         facing = _facing(images["normal"], clip.K[batch])[usable][bright] if facing_on else None
-        where = usable.nonzero()[bright]                  # (n, 3): index in the batch, row, column
-        parts.append((images["uv"][usable][bright], shading[bright], colour[bright], batch[where[:, 0]],
-                      where[:, 1:].to(colour.dtype))
+        parts.append((images["uv"][usable][bright], shading[bright], colour[bright])
                      + ((facing,) if facing_on else ())
                      + (() if environment is None else (base[bright], gain[bright], basis[bright])))
-    uv, shading, colour, frame, place, *rest = (torch.cat(column) for column in zip(*parts))
+    uv, shading, colour, *rest = (torch.cat(column) for column in zip(*parts))
     facing = rest.pop(0) if facing_on else None
     rows, columns, weights = bilinear_texels(uv, size)
     texels = (rows * size + columns).to(torch.int32)    # int32: memory
-    return _Observations(texels, weights, shading, colour, *rest, facing=facing, frame=frame, place=place)
+    return _Observations(texels, weights, shading, colour, *rest, facing=facing)
 
 
 def stencil_places(texels, size):

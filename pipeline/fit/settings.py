@@ -105,9 +105,6 @@ class FitSettings:
     # "off", the default: on the phone-like clip's seed 0 it lost 0.3 dB held out and its albedo was no nearer
     # the truth (one seed; docs/fidelity.md)
     albedo_facing: str = "off"
-    # each frame registered to the avatar by a smooth field of image offsets before the albedo solve reads it
-    # (frame_registration.py): "on" | "off", the default
-    albedo_registration: str = "off"
     # frames kept out of the fit and scored as it runs: the best state is written (validation.py). Off until it
     # is shown to help: with `fast` on the demo clip (3 seeds) it left held-out PSNR level (27.76 dB both), joints
     # 0.11 mm worse, 10% more time; on the sun clip it went back to an earlier state whose surface was 36% worse
@@ -156,8 +153,6 @@ class FitSettings:
             raise ValueError(f"size_tolerance must be a fraction from 0 to 1, got {self.size_tolerance!r}")
         if self.albedo_facing not in ("on", "off"):
             raise ValueError(f"albedo_facing must be 'on' or 'off', got {self.albedo_facing!r}")
-        if self.albedo_registration not in ("on", "off"):
-            raise ValueError(f"albedo_registration must be 'on' or 'off', got {self.albedo_registration!r}")
         if not isinstance(self.align_downscale, int) or self.align_downscale < 1:
             raise ValueError(f"align_downscale must be a whole number from 1 (the working size), "
                              f"got {self.align_downscale!r}")
