@@ -93,7 +93,8 @@ class FitSettings:
     # "on" | "off", the default: on the phone-like clip (2 seeds) the fitted and held-out frames gained 0.4-1.3 dB
     # and the albedo came nearer the truth, but the hand's size moved (surface 0.68 -> 2.31 and 0.73 -> 0.87 mm,
     # new poses worse); with the size held (energy_terms size_prior), 3 seeds: held out +0.76 dB, the surface still
-    # worse on 2 (docs/fit.md)
+    # worse on 2; with the scale held where the alignment left it (the default), 3 seeds: joints -0.04 to -0.2 mm,
+    # the albedo sharper, but new poses -0.6 to -2.3 dB, the hand 0.7-3.2% large (docs/fit.md)
     restart_lost_frames: str = "off"
     # the point light's direction and the ambient ratio searched over the whole sphere before the first stage that
     # fits them (light_search.py): "on", the default, | "off" (the light starts in front of the hand, above the
