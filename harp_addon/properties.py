@@ -9,7 +9,8 @@ PRESETS = [("preview", "Preview", "A first look in under 2 min for a 150-frame c
                                   "5% and L1 9% above Fast's"),
            ("fast", "Fast", "About 7 min for a 150-frame 448 px clip on 2 CPU cores, 8 on one"),
            ("full", "Full", "Fast's fit carried to convergence, about 8-9 min for a 150-frame clip on 2 CPU "
-                            "cores: the held-out frames 0.2-0.3 dB closer than Fast's"),
+                            "cores: the held-out frames 0.3-0.4 dB closer than Fast's, the joints closer on a "
+                            "phone-like clip"),
            ("paper", "Paper", "HARP's own schedule at 448 px, about 50 min for 150 frames, to compare with the "
                               "paper; no better than Fast")]
 SHADOWS = [("auto", "Auto", "Decided by measuring: fitted frames rendered with and without shadows, "

@@ -208,8 +208,10 @@ PRESET_NOTES = {
     "preview": "a first look in under 2 min for a 150-frame 448 px clip on 2 CPU cores (160 px, a short fit, HARP's "
                "light alone): joint error 5%% and L1 9%% above fast's",
     "fast": "about 7 min for a 150-frame 448 px clip on 2 CPU cores, 8 on one",
-    "full": "fast's fit carried to convergence, about 8-9 min for a 150-frame clip on 2 CPU cores: held-out "
-            "PSNR +0.2-0.3 dB against fast's (3 seeds on two clips), joint error 8%% lower on the phone-like clip",
+    "full": "fast's fit carried to convergence, about 8-9 min for a 150-frame clip on 2 CPU cores (twice fast's on "
+            "30 frames): held-out PSNR +0.4 dB against fast's on the phone-like clip and +0.3 on the demo, joint error "
+            "11%% lower and the albedo sharper on the phone-like clip (3 seeds each); on the demo its hand ended 1-4%% "
+            "small (new poses -0.5 dB)",
     "paper": "HARP's own schedule at 448 px, about 50 min for 150 frames, to compare with the paper: no better than "
              "fast on the clips measured",
 }
