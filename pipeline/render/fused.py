@@ -31,7 +31,7 @@ from .rasterize import _FACE_BITS, NEAR, Rasterization, candidate_test, face_box
 from .shading import tangent_weights
 from .sparse_operator import SparseOperator, vertex_major
 from .vector_ops import cross3, dot3, normalized
-from .shadow_map import BIAS, EMPTY_DEPTH, SHARPNESS, light_view
+from .shadow_map import BIAS, EMPTY_DEPTH, SHARPNESS, filter_taps, light_view
 
 
 @torch.no_grad()
@@ -346,50 +346,50 @@ def shadow_visibility(points, faces, surface_points, surface_frags: Fragments, l
     camera's fragments `surface_frags` interpolate (`surface_points` is not read: the points'
     positions in the light's frame are interpolated from the mesh's rather than transformed
     one by one, the same numbers since the barycentrics sum to 1, for a gather of three
-    corners in place of a 3x3 matrix per point); the soft test on the 3x3 texels is one
-    primitive with its own backward."""
+    corners in place of a 3x3 matrix per point); the soft test on the filter's 4 x 4 texels is
+    one primitive with its own backward."""
     batch = points.shape[0]
     rotation, eye, K, in_light = light_view(points, light_position, resolution, target, radius)
     rast = rasterize(in_light, faces, K, resolution, resolution)
     frags = fragments(in_light, faces, K, rast)
-    # two texels of padding: the 3x3 texels around any texel from -1 to `resolution` lie inside,
-    # and read the empty depth where the reference clamps to its one texel of padding
-    padded = resolution + 4
+    # one texel of padding: the test's texels are clamped to it where they fall off the map
+    padded = resolution + 2
     depth_map = torch.full((batch, padded, padded), EMPTY_DEPTH, dtype=points.dtype, device=points.device)
     row, column = frags.pixel % (resolution * resolution) // resolution, frags.pixel % resolution
-    inner = (frags.frame * padded + row + 2) * padded + column + 2
+    inner = (frags.frame * padded + row + 1) * padded + column + 1
     depth_map = depth_map.reshape(-1).index_put((inner,), interpolate(in_light[..., 2:], frags, faces)[:, 0])
     receiver = interpolate(in_light, surface_frags, faces)
+    first, weights = filter_taps(project(receiver.unsqueeze(0), K)[0])
     with torch.no_grad():
-        texel = project(receiver.unsqueeze(0), K)[0]
-        column = torch.floor(texel[:, 0]).long().clamp(-1, resolution) + 2
-        row = torch.floor(texel[:, 1]).long().clamp(-1, resolution) + 2
-        step = torch.tensor([-1, 0, 1], device=points.device)
-        around = (step.unsqueeze(1) * padded + step).reshape(-1)             # (9,) flat offsets
-        texels = ((surface_frags.frame * padded + row) * padded + column).unsqueeze(1) + around
-    return _SoftShadowTest.apply(depth_map, texels, receiver[:, 2:3])
+        taps = torch.arange(4, device=points.device)
+        columns = (first[:, :1] + taps).clamp(-1, resolution) + 1                  # (N, 4)
+        rows = (first[:, 1:] + taps).clamp(-1, resolution) + 1
+        texels = ((surface_frags.frame[:, None, None] * padded + rows[:, :, None]) * padded
+                  + columns[:, None, :]).reshape(-1, 16)                           # row by row, as the weights
+    return _SoftShadowTest.apply(depth_map, texels, weights, receiver[:, 2:3])
 
 
 class _SoftShadowTest(torch.autograd.Function):
-    """V = mean over the 9 texels of sigmoid(SHARPNESS (z_map[texel] - (z - BIAS))), (N, 1), from
-    the flat depth map, the texels (N, 9) and the receivers' depths z (N, 1); the sigmoids are
-    kept for a backward of two passes."""
+    """V = sum over the texels of weight * sigmoid(SHARPNESS (z_map[texel] - (z - BIAS))), (N, 1),
+    from the flat depth map, the texels (N, T), their weights (N, T) and the receivers' depths z
+    (N, 1); the sigmoids are kept for the backward."""
 
     @staticmethod
-    def forward(ctx, depth_map, texels, depth):
-        soft = depth_map.index_select(0, texels.reshape(-1)).view(-1, 9)
+    def forward(ctx, depth_map, texels, weights, depth):
+        soft = depth_map.index_select(0, texels.reshape(-1)).view(texels.shape)
         soft.sub_(depth - BIAS).mul_(SHARPNESS).sigmoid_()
-        ctx.save_for_backward(texels, soft)
+        ctx.save_for_backward(texels, weights, soft)
         ctx.texels_in_map = len(depth_map)
-        return soft.sum(1, keepdim=True) / 9.0
+        return (soft * weights).sum(1, keepdim=True)
 
     @staticmethod
     def backward(ctx, grad):
-        texels, soft = ctx.saved_tensors
-        scaled = soft * (grad * (SHARPNESS / 9.0))
-        slope = torch.addcmul(scaled, scaled, soft, value=-1)                    # s (1 - s) g, (N, 9)
+        texels, weights, soft = ctx.saved_tensors
+        scaled = weights * soft * (grad * SHARPNESS)
+        slope = torch.addcmul(scaled, scaled, soft, value=-1)                    # w s (1 - s) g, (N, T)
         grad_map = slope.new_zeros(ctx.texels_in_map).index_add_(0, texels.reshape(-1), slope.reshape(-1))
-        return grad_map, None, -slope.sum(1, keepdim=True)
+        grad_weights = soft * grad if ctx.needs_input_grad[2] else None
+        return grad_map, None, grad_weights, -slope.sum(1, keepdim=True)
 
 
 def composite(values, behind, frags: Fragments):

@@ -2,9 +2,12 @@
 
 A depth map of the mesh is rendered from the light: a camera on a sphere of radius 1.5 m
 around the hand's centre, looking at it, with a field of view that just holds the mesh. A
-surface point is lit by the fraction V of the 3x3 shadow-map texels around its projection whose
-depth is beyond its own (soft test sigmoid(1000 * (z_map - (z - 0.008))), metres). Depths in
-the map are interpolated differentiably from the occluding faces.
+surface point is lit by the share V of the shadow-map texels around its projection whose depth
+is beyond its own (soft test sigmoid(1000 * (z_map - (z - 0.008))), metres): the test over a
+3x3-texel box, interpolated bilinearly between the texel centres around the point (filter_taps),
+so that V varies continuously as the point moves instead of in texel-sized steps (a shadow's
+edge in a render is a ramp, not a staircase). Depths in the map are interpolated differentiably
+from the occluding faces.
 """
 from __future__ import annotations
 
@@ -17,6 +20,23 @@ LIGHT_DISTANCE = 1.5
 SHARPNESS = 1000.0
 BIAS = 0.008
 EMPTY_DEPTH = 100.0   # depth of texels that see no occluder
+
+
+def filter_taps(texel):
+    """The texels each point's shadow test reads, and their weights: texel (N, 2) the points'
+    positions in the shadow map (column, row in pixels; texel centres at +0.5). Returns the first
+    of the 4 x 4 texels around each point (N, 2) (column, row; long, unclamped) and their weights
+    (N, 16) (row by row), which sum to 1: the 3x3 box around the texel centre just before the
+    point and the one just after, blended by the point's place between them (per axis
+    (1 - f) / 3, 1 / 3, 1 / 3, f / 3). At a texel's centre this is that texel's 3x3 box. The
+    weights differentiate in the point's place (the texels chosen do not)."""
+    texel = texel - 0.5
+    first = torch.floor(texel.detach())
+    fraction = texel - first
+    third = torch.full_like(fraction, 1.0 / 3.0)
+    per_axis = torch.stack([(1 - fraction) / 3, third, third, fraction / 3], dim=-1)   # (N, 2, 4)
+    weights = per_axis[:, 1, :, None] * per_axis[:, 0, None, :]                         # (N, 4 rows, 4 columns)
+    return first.long() - 1, weights.reshape(-1, 16)
 
 
 def light_camera(light_position, centre, radius, resolution):
@@ -70,13 +90,13 @@ def shadow_visibility(points, faces, surface_points, surface_frame, light_positi
     depth_map = torch.nn.functional.pad(depth_map.view(batch, resolution, resolution), (1, 1, 1, 1), value=EMPTY_DEPTH)
     receiver = torch.einsum("nij,nj->ni", rotation[surface_frame], surface_points - eye[surface_frame])
     texel = project(receiver.unsqueeze(0), K)[0]
-    column = torch.floor(texel[:, 0]).long().clamp(-1, resolution) + 1   # +1: padding
-    row = torch.floor(texel[:, 1]).long().clamp(-1, resolution) + 1
+    first, weights = filter_taps(texel)
     visibility = 0.0
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            r = (row + dy).clamp(0, resolution + 1)
-            c = (column + dx).clamp(0, resolution + 1)
+    for dy in range(4):
+        for dx in range(4):
+            r = (first[:, 1] + dy).clamp(-1, resolution) + 1   # +1: padding
+            c = (first[:, 0] + dx).clamp(-1, resolution) + 1
             occluder = depth_map[surface_frame, r, c]
-            visibility = visibility + torch.sigmoid(SHARPNESS * (occluder - (receiver[:, 2] - BIAS)))
-    return (visibility / 9.0).unsqueeze(1)
+            soft = torch.sigmoid(SHARPNESS * (occluder - (receiver[:, 2] - BIAS)))
+            visibility = visibility + weights[:, 4 * dy + dx] * soft
+    return visibility.unsqueeze(1)
