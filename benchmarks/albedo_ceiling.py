@@ -45,18 +45,26 @@ def problem_at(fit, sequence, resolution):
 
 
 @torch.no_grad()
-def show_true_albedo(problem, shadows, true_albedo, batch_size=4):
+def show_true_albedo(problem, shadows, true_albedo, batch_size=4, footprint=1):
     """Replace the frames, inside the avatar's silhouette, by the fitted avatar rendered with the
-    true albedo (its exposure gains applied as the solve reads them)."""
+    true albedo (its exposure gains applied as the solve reads them). `footprint` > 1 renders
+    that many times finer and averages each pixel's footprint, as a camera's pixel (and Cycles'
+    pixel filter) integrates the surface it sees, instead of sampling the pixel's centre."""
     avatar, clip = problem.avatar, problem.clip
     appearance = dataclasses.replace(avatar.appearance(), albedo=true_albedo)
     light = avatar.light(shadows)
+    scale = torch.tensor([footprint, footprint, 1.0], dtype=clip.K.dtype)[:, None]
     for batch in torch.arange(len(problem.frames)).split(batch_size):
         vertices, _ = avatar.posed(batch)
-        images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=("rgb", "alpha"),
-                        appearance=appearance, light=light, antialiased=False)
-        rgb = images["rgb"] * avatar.exposure_gain(batch) if problem.exposure_on else images["rgb"]
-        inside = images["alpha"] > 0.5
+        K = clip.K[batch] * scale
+        K[:, :2, 2] = (clip.K[batch][:, :2, 2] + 0.5) * footprint - 0.5   # the same pixel grid, finer
+        images = render(vertices, avatar.mesh, K, clip.height * footprint, clip.width * footprint,
+                        outputs=("rgb", "alpha"), appearance=appearance, light=light, antialiased=False)
+        rgb, alpha = (torch.nn.functional.avg_pool2d(images[name].permute(0, 3, 1, 2), footprint).permute(0, 2, 3, 1)
+                      for name in ("rgb", "alpha"))
+        rgb = rgb / alpha.clamp(min=1e-6)                   # the hand's own colour where a pixel is partly covered
+        rgb = rgb * avatar.exposure_gain(batch) if problem.exposure_on else rgb
+        inside = alpha > 0.5
         clip.images[batch] = torch.where(inside, rgb, clip.images[batch])
 
 
@@ -84,6 +92,9 @@ def main(argv=None):
     parser.add_argument("sequence")
     parser.add_argument("--resolution", type=int, nargs="*", default=[0],
                         help="working resolutions (0: the fit's own)")
+    parser.add_argument("--reweighted-only", action="store_true", help="skip the plain solve")
+    parser.add_argument("--footprint", type=int, default=1,
+                        help="ideal frames rendered this many times finer and averaged per pixel")
     parser.add_argument("--supersample", type=int, nargs="*", default=[1],
                         help="solve textures this many times finer than the fit's (albedo_solve.solved_albedo)")
     args = parser.parse_args(argv)
@@ -97,11 +108,11 @@ def main(argv=None):
         print(json.dumps({"case": "as fitted", "texture": size, **fitted}), flush=True)
         for frames in ("frames", "ideal"):
             if frames == "ideal":
-                show_true_albedo(problem, shadows, true_albedo)
+                show_true_albedo(problem, shadows, true_albedo, footprint=args.footprint)
             for supersample in args.supersample:
-                for plain in (False, True):
+                for plain in (False,) if args.reweighted_only else (False, True):
                     albedo, seconds = solve(problem, shadows, plain, supersample)
-                    print(json.dumps({"case": frames, "solve": "plain" if plain else "reweighted",
+                    print(json.dumps({"case": frames, "footprint": args.footprint if frames == "ideal" else 1, "solve": "plain" if plain else "reweighted",
                                       "resolution": problem.clip.width, "texture": size, "supersample": supersample,
                                       **scores(albedo, truth), "seconds": round(seconds, 1)}), flush=True)
 

@@ -28,10 +28,14 @@ def filter_taps(texel):
     of the 4 x 4 texels around each point (N, 2) (column, row; long, unclamped) and their weights
     (N, 16) (row by row), which sum to 1: the 3x3 box around the texel centre just before the
     point and the one just after, blended by the point's place between them (per axis
-    (1 - f) / 3, 1 / 3, 1 / 3, f / 3). At a texel's centre this is that texel's 3x3 box. The
-    weights differentiate in the point's place (the texels chosen do not)."""
-    texel = texel - 0.5
-    first = torch.floor(texel.detach())
+    (1 - f) / 3, 1 / 3, 1 / 3, f / 3). At a texel's centre this is that texel's 3x3 box.
+
+    The weights carry no gradient, as the texels chosen do not: the map's occluders are
+    rasterised, so their edges in it do not move with the geometry or the light, and a gradient
+    through the receiver's place alone says that a hand moved as a whole, or a light moved, slides
+    its shadows across it (a fit with it drove the light 0.8 m away on the phone-like clip)."""
+    texel = texel.detach() - 0.5
+    first = torch.floor(texel)
     fraction = texel - first
     third = torch.full_like(fraction, 1.0 / 3.0)
     per_axis = torch.stack([(1 - fraction) / 3, third, third, fraction / 3], dim=-1)   # (N, 2, 4)
