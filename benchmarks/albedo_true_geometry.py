@@ -13,7 +13,9 @@ The frames the fit left off their silhouettes (IoU under 0.8, as lost_frames rul
 of every solve. Printed per case, one JSON line: the silhouettes' IoU against the masks, the
 albedo's sharpness ratio and MAE against the truth in the visible UV area (as albedo_ceiling.py),
 and the new-pose PSNR in the overlap of the avatar wearing that albedo and of the true shape
-wearing it (as new_pose_limits.py).
+wearing it (as new_pose_limits.py). `--per-frame` adds each case's IoU per fitted frame and,
+for the fitted poses, each frame's joint error (Procrustes-aligned, mm) and how much farther from
+the camera than the truth the fitted keypoints stand (mm, their mean depth).
 """
 from __future__ import annotations
 
@@ -32,6 +34,7 @@ from albedo_ceiling import problem_at, scores  # noqa: E402
 from new_pose_limits import new_pose_figures  # noqa: E402
 from pipeline.evaluate.albedo import albedo_truth  # noqa: E402
 from pipeline.evaluate.fidelity import true_hand  # noqa: E402
+from pipeline.evaluate.poses import PoseScorer  # noqa: E402
 from pipeline.fit import albedo_solve  # noqa: E402
 from pipeline.fit.lost_frames import LOST_IOU  # noqa: E402
 from pipeline.formats import sequence_folder as seq  # noqa: E402
@@ -83,11 +86,27 @@ def silhouette_ious(problem, posed, batch_size=6):
     return np.asarray(ious)
 
 
+def pose_errors(problem, sequence):
+    """Per fitted frame: the joints' error after a Procrustes alignment (mm) and the fitted
+    keypoints' mean depth minus the true keypoints' (mm; positive: too far from the camera)."""
+    scorer = PoseScorer(sequence)
+    frames = np.asarray(problem.frames)
+    reference, _ = scorer.truth(frames)
+    errors = scorer.avatar_errors(problem.avatar, frames, reference)["joints"]
+    avatar = problem.avatar
+    fitted = scorer.model(avatar.betas.double(), (avatar.pose * avatar.pose_mask).double(),
+                          avatar.global_orient.double(), avatar.transl.double()).keypoints[:, :21]
+    depth = (fitted[..., 2] - reference["joints"][..., 2].to(fitted)).mean(-1) * 1000
+    return {"joints_procrustes_mm": np.round(errors["procrustes_mm"], 2).tolist(),
+            "depth_error_mm": depth.round(decimals=1).tolist()}
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("fit")
     parser.add_argument("sequence")
     parser.add_argument("--resolution", type=int, default=448, help="working resolution of the solve (0: the fit's own)")
+    parser.add_argument("--per-frame", action="store_true", help="per-frame IoU, joint error and depth error")
     args = parser.parse_args(argv)
     torch.set_grad_enabled(False)
     problem, shadows = problem_at(args.fit, args.sequence, args.resolution)
@@ -100,8 +119,11 @@ def main(argv=None):
         problem.avatar.posed = posed
         albedo = albedo_solve.solved_albedo(problem, shadows, frames=kept)[0]
         figures = new_pose_figures(args.fit, args.sequence, albedo.permute(1, 2, 0).numpy())
+        per_frame = {"iou": ious.round(3).tolist()} if args.per_frame else {}
+        if args.per_frame and case == "fitted geometry":
+            per_frame.update(pose_errors(problem, args.sequence))
         print(json.dumps({"case": case, "iou_mean": round(float(ious.mean()), 4), "iou_min": round(float(ious.min()), 4),
-                          "frames_solved": len(kept), **scores(albedo, truth), **figures}), flush=True)
+                          "frames_solved": len(kept), **scores(albedo, truth), **figures, **per_frame}), flush=True)
 
 
 if __name__ == "__main__":
