@@ -13,9 +13,11 @@ The frames the fit left off their silhouettes (IoU under 0.8, as lost_frames rul
 of every solve. Printed per case, one JSON line: the silhouettes' IoU against the masks, the
 albedo's sharpness ratio and MAE against the truth in the visible UV area (as albedo_ceiling.py),
 and the new-pose PSNR in the overlap of the avatar wearing that albedo and of the true shape
-wearing it (as new_pose_limits.py). `--per-frame` adds each case's IoU per fitted frame and,
-for the fitted poses, each frame's joint error (Procrustes-aligned, mm) and how much farther from
-the camera than the truth the fitted keypoints stand (mm, their mean depth).
+wearing it (as new_pose_limits.py). `--per-frame` adds each case's IoU per fitted frame and the
+frames' L1 in the compared pixels rendered with that case's solved albedo (which poses the energy
+prefers, each with its best albedo), and, for the fitted poses, each frame's joint error
+(Procrustes-aligned, mm) and how much farther from the camera than the truth the fitted keypoints
+stand (mm, their mean depth).
 """
 from __future__ import annotations
 
@@ -86,6 +88,21 @@ def silhouette_ious(problem, posed, batch_size=6):
     return np.asarray(ious)
 
 
+def frame_l1(problem, posed, shadows, batch_size=4):
+    """(F,) mean absolute difference in each frame's compared pixels between the frame and the
+    avatar, as it stands, posed by `posed`."""
+    avatar, clip, errors = problem.avatar, problem.clip, []
+    for batch in torch.arange(len(problem.frames)).split(batch_size):
+        vertices, _ = posed(batch)
+        rgb = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=("rgb",),
+                     appearance=avatar.appearance(), light=avatar.light(shadows, batch, vertices))["rgb"]
+        if problem.exposure_on:
+            rgb = rgb * avatar.exposure_gain(batch)
+        difference = (rgb - clip.images[batch]).abs().mean(-1)
+        errors += [float(d[pixels].mean()) for d, pixels in zip(difference, problem.compared_pixels(batch))]
+    return np.asarray(errors)
+
+
 def pose_errors(problem, sequence):
     """Per fitted frame: the joints' error after a Procrustes alignment (mm) and the fitted
     keypoints' mean depth minus the true keypoints' (mm; positive: too far from the camera)."""
@@ -106,12 +123,12 @@ def main(argv=None):
     parser.add_argument("fit")
     parser.add_argument("sequence")
     parser.add_argument("--resolution", type=int, default=448, help="working resolution of the solve (0: the fit's own)")
-    parser.add_argument("--per-frame", action="store_true", help="per-frame IoU, joint error and depth error")
+    parser.add_argument("--per-frame", action="store_true", help="per-frame IoU, L1, joint error and depth error")
     args = parser.parse_args(argv)
     torch.set_grad_enabled(False)
     problem, shadows = problem_at(args.fit, args.sequence, args.resolution)
     truth = albedo_truth(args.sequence, problem.avatar.albedo.shape[-1], "cpu", args.fit)
-    kept = None
+    kept, fitted_albedo = None, problem.avatar.albedo.detach().clone()
     for case, posed in geometries(problem, args.sequence).items():
         ious = silhouette_ious(problem, posed)
         if kept is None:                      # the fitted geometry's: the frames the fit keeps
@@ -119,7 +136,11 @@ def main(argv=None):
         problem.avatar.posed = posed
         albedo = albedo_solve.solved_albedo(problem, shadows, frames=kept)[0]
         figures = new_pose_figures(args.fit, args.sequence, albedo.permute(1, 2, 0).numpy())
-        per_frame = {"iou": ious.round(3).tolist()} if args.per_frame else {}
+        per_frame = {}
+        if args.per_frame:
+            problem.avatar.albedo.data.copy_(albedo)
+            per_frame = {"iou": ious.round(3).tolist(), "l1": frame_l1(problem, posed, shadows).round(4).tolist()}
+            problem.avatar.albedo.data.copy_(fitted_albedo)        # each case's solve starts from the fit's albedo
         if args.per_frame and case == "fitted geometry":
             per_frame.update(pose_errors(problem, args.sequence))
         print(json.dumps({"case": case, "iou_mean": round(float(ious.mean()), 4), "iou_min": round(float(ious.min()), 4),
