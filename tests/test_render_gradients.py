@@ -176,7 +176,12 @@ def test_shadow_gradients_with_respect_to_light_and_geometry(monkeypatch):
     # the shadow test's filter weights carry no gradient (shadow_map.filter_taps): the finite
     # differences hold them where the unperturbed render put each receiver
     taken = []
-    monkeypatch.setattr(fused, "filter_taps", lambda texel: taken.append(shadow_map.filter_taps(texel)) or taken[-1])
+
+    def filter_taps_kept(texel):
+        taken.append(shadow_map.filter_taps(texel))
+        return taken[-1]
+
+    monkeypatch.setattr(fused, "filter_taps", filter_taps_kept)
     light_position = torch.tensor([0.05, -0.04, -0.2], dtype=torch.float64, requires_grad=True)
     shift = torch.zeros(3, dtype=torch.float64, requires_grad=True)
     value = loss(light_position, shift)
