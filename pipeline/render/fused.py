@@ -371,8 +371,9 @@ def shadow_visibility(points, faces, surface_points, surface_frags: Fragments, l
 
 class _SoftShadowTest(torch.autograd.Function):
     """V = sum over the texels of weight * sigmoid(SHARPNESS (z_map[texel] - (z - BIAS))), (N, 1),
-    from the flat depth map, the texels (N, T), their weights (N, T) and the receivers' depths z
-    (N, 1); the sigmoids are kept for the backward."""
+    from the flat depth map, the texels (N, T), their weights (N, T; no gradient, as
+    shadow_map.filter_taps gives them) and the receivers' depths z (N, 1); the sigmoids are kept
+    for the backward."""
 
     @staticmethod
     def forward(ctx, depth_map, texels, weights, depth):
@@ -388,8 +389,7 @@ class _SoftShadowTest(torch.autograd.Function):
         scaled = weights * soft * (grad * SHARPNESS)
         slope = torch.addcmul(scaled, scaled, soft, value=-1)                    # w s (1 - s) g, (N, T)
         grad_map = slope.new_zeros(ctx.texels_in_map).index_add_(0, texels.reshape(-1), slope.reshape(-1))
-        grad_weights = soft * grad if ctx.needs_input_grad[2] else None
-        return grad_map, None, grad_weights, -slope.sum(1, keepdim=True)
+        return grad_map, None, None, -slope.sum(1, keepdim=True)
 
 
 def composite(values, behind, frags: Fragments):
