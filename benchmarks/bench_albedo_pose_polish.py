@@ -10,7 +10,8 @@ fit's own energy and rates) between the first solve and a second one: poses, lig
 move, the solved albedo and normal map stay (and the shape, unless --move-shape). The fit's last
 pose steps ran against the albedo its gradient steps had made, blurrier than the solved one; these
 see the solved albedo's edges. `--steps 0`: the work after the stages done again, the reference.
-The avatar (the fit folder with the new albedo.png) goes to OUT and is scored against the
+`--light-size`: the light's size decided before the first solve, as a fit with `light_size`
+"auto" does. The avatar (the fit folder with the new albedo.png) goes to OUT and is scored against the
 synthetic SEQ's true hand (evaluate/fidelity.py); one JSON line. The figures of docs/fidelity.md
 ("The poses polished against the solved albedo") come from this script.
 """
@@ -33,6 +34,8 @@ from albedo_ceiling import problem_at  # noqa: E402
 from pipeline.evaluate.fidelity import evaluate_fidelity  # noqa: E402
 from pipeline.fit.albedo_solve import decided_texels, solve_avatar_albedo  # noqa: E402
 from pipeline.fit.checkpoint import FitState  # noqa: E402
+from pipeline.fit.light_probe import probe_frames  # noqa: E402
+from pipeline.fit.light_size import decide_light_size  # noqa: E402
 from pipeline.fit.lost_frames import frames_kept, frames_off_their_silhouettes  # noqa: E402
 from pipeline.fit.schedule import Schedule, StageKind, StageSpec  # noqa: E402
 from pipeline.fit.stage_run import StageRun  # noqa: E402
@@ -43,12 +46,17 @@ from pipeline.formats.png_file import write_png  # noqa: E402
 SHAPE = ("betas", "displacement")
 
 
-def polished(fit, sequence, steps, move_shape=False, seed=0):
-    """The fit's avatar after the work after the stages with `steps` polishing steps; seconds."""
+def polished(fit, sequence, steps, move_shape=False, seed=0, light_size=False):
+    """The fit's avatar after the work after the stages with `steps` polishing steps (and with
+    `light_size`, the light's size decided first, as FitSettings.light_size "auto" does); seconds,
+    the light size's decision (None without it)."""
     problem, shadows = problem_at(fit, sequence, None)
     started = time.perf_counter()
     problem.avatar.measure_occlusion(exact=True)
     painting = frames_kept(frames_off_their_silhouettes(problem), len(problem.frames))   # as the fit leaves out
+    decision = None
+    if light_size:
+        decision = decide_light_size(problem, shadows, probe_frames(len(problem.frames), kept=painting))
     solve_avatar_albedo(problem, shadows, frames=painting)
     if steps:
         kept = problem.frozen
@@ -65,7 +73,7 @@ def polished(fit, sequence, steps, move_shape=False, seed=0):
     if seen is not problem:
         solve_avatar_albedo(seen, shadows, solve_environment=False, frames=painting)
     fill_avatar_albedo(problem.avatar, decided_texels(seen, frames=painting))
-    return problem.avatar, time.perf_counter() - started
+    return problem.avatar, time.perf_counter() - started, decision
 
 
 def main():
@@ -76,16 +84,18 @@ def main():
     parser.add_argument("--steps", type=int, default=150)
     parser.add_argument("--move-shape", action="store_true", help="let the shape and displacements move too")
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--light-size", action="store_true", help="decide the light's size first (light_size.py)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    avatar, seconds = polished(args.fit, args.sequence, args.steps, args.move_shape)
+    avatar, seconds, decision = polished(args.fit, args.sequence, args.steps, args.move_shape,
+                                         light_size=args.light_size)
     shutil.copytree(args.fit, args.out, dirs_exist_ok=True)
     albedo = avatar.albedo.detach().clamp(0, 1).permute(1, 2, 0).cpu().numpy()
     write_png(args.out / av.ALBEDO_FILE, np.round(albedo * 255).astype(np.uint8))
     result = evaluate_fidelity(args.out, args.sequence)
     texture, poses = result["texture"], result["new_poses"]
     print(json.dumps({"fit": str(args.fit), "steps": args.steps, "move_shape": args.move_shape,
-                      "seconds": round(seconds, 1),
+                      "seconds": round(seconds, 1), "light_size": decision,
                       "new_poses_overlap": round(poses["psnr_overlap_mean"], 2),
                       "true_shape_wearing_the_albedo": round(poses["fitted_albedo_alone"]["psnr_overlap_mean"], 2),
                       "albedo_psnr_scaled": round(texture["psnr_scaled"], 2), "albedo_mae_scaled": round(texture["mae_scaled"], 4),

@@ -15,7 +15,7 @@ and in this order, as the fit first meets them:
   clip_data.harmonic_fill), made on first use: the shadow decision half-way through the joint
   stage, or the outputs; and per frame;
 - `shadow_probe`: what `shadows auto` does besides (fitting._decide_shadows): the albedo solved
-  from SHADOW_PROBE_FRAMES frames without and with shadows (the light held), and those frames'
+  from light_probe.PROBE_FRAMES frames without and with shadows (the light held), and those frames'
   L1 in the masks each way.
 With --fit (a finished fit of every frame of SEQ, `harp fit SEQ --out FIT`): the albedo solved
 again as the fit's last work does, on that fit's avatar (its shadows as decided): from the frames
@@ -46,7 +46,7 @@ def _timed(function):
 
 def run(sequence, threads=1, fit=None):
     torch.set_num_threads(threads)
-    from pipeline.fit import estimate, fitting
+    from pipeline.fit import estimate, fitting, light_probe
     from pipeline.fit.albedo_solve import solved_albedo
     from pipeline.fit.checkpoint import FitState
     from pipeline.fit.outputs import masked_l1
@@ -70,7 +70,7 @@ def run(sequence, threads=1, fit=None):
     _, figures["background_plates"] = _timed(lambda: problem.clip.backgrounds)
     figures["background_plates_per_frame"] = figures["background_plates"] / len(problem.frames)
 
-    probe = fitting.shadow_probe_frames(len(problem.frames))
+    probe = light_probe.probe_frames(len(problem.frames))
     with torch.no_grad():
         for shadows in (False, True):
             label = "with_shadows" if shadows else "without_shadows"

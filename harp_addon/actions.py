@@ -68,19 +68,21 @@ def start_import(scene_name, video, out, masks=None, side="auto", fov=0.0, pytho
 
 
 def start_fit(scene_name, sequence, out, preset="fast", shadows="auto", init="mediapipe", python=None,
-              resume=False, initialise_again=False, extra=(), environment=None, specular=None):
+              resume=False, initialise_again=False, extra=(), environment=None, specular=None, light_size=None):
     """`harp init` (unless the sequence has an init.npz and `initialise_again` is off) and then
     `harp fit --progress jsonl` in a worker; with `resume`, the fit goes on from its checkpoint.
     `extra` are more `harp fit` arguments (e.g. --max-steps N for a quick look); `environment`
-    and `specular` (auto, on, off; None: the engine's default) the room's light and the skin's sheen."""
+    and `specular` (auto, on, off; None: the engine's default) the room's light and the skin's sheen,
+    `light_size` (auto, off; None: likewise) the light's size."""
     python = _python(python)
     sequence, out = Path(sequence), Path(out)
     if not (sequence / sequence_folder.SEQUENCE_FILE).is_file():
         raise ActionError(f"not a sequence folder (import the footage first): {sequence}")
     room = [] if environment is None else ["--environment", environment]
     sheen = [] if specular is None else ["--specular", specular]
-    fit = ["fit", sequence, "--out", out, "--preset", preset, "--shadows", shadows, *room, *sheen, "--progress", "jsonl",
-           *extra]
+    size = [] if light_size is None else ["--light-size", light_size]
+    fit = ["fit", sequence, "--out", out, "--preset", preset, "--shadows", shadows, *room, *sheen, *size,
+           "--progress", "jsonl", *extra]
     if resume:
         if not (out / "checkpoint.pt").is_file():
             raise ActionError(f"nothing to resume in {out}")

@@ -7,10 +7,10 @@ they are imported from the installed pipeline package.
 """
 try:  # the built extension
     from .vendor.formats import (avatar_folder, camera, environment_light, fit_report, hand_model_file,
-                                  pose_smoothing, rotations, sequence_folder, specular_lobe)
+                                  light_size, pose_smoothing, rotations, sequence_folder, specular_lobe)
 except ImportError:  # the project itself
     from pipeline.formats import (avatar_folder, camera, environment_light, fit_report, hand_model_file,
-                                  pose_smoothing, rotations, sequence_folder, specular_lobe)
+                                  light_size, pose_smoothing, rotations, sequence_folder, specular_lobe)
 
-__all__ = ["avatar_folder", "camera", "environment_light", "fit_report", "hand_model_file", "pose_smoothing",
-           "rotations", "sequence_folder", "specular_lobe"]
+__all__ = ["avatar_folder", "camera", "environment_light", "fit_report", "hand_model_file", "light_size",
+           "pose_smoothing", "rotations", "sequence_folder", "specular_lobe"]

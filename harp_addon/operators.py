@@ -108,7 +108,8 @@ class HARP_OT_fit(_Action):
         actions.start_fit(context.scene.name, bpy.path.abspath(settings.sequence), bpy.path.abspath(avatar),
                           preset=settings.preset, shadows=settings.shadows,
                           environment=_unless_preset(settings.environment),
-                          specular=_unless_preset(settings.specular), init=settings.init,
+                          specular=_unless_preset(settings.specular),
+                          light_size=_unless_preset(settings.light_size), init=settings.init,
                           python=actions.engine_python(context), resume=self.resume)
         settings.avatar = avatar
         _watch(context)
@@ -116,8 +117,8 @@ class HARP_OT_fit(_Action):
 
 
 def _unless_preset(choice):
-    """A panel choice of the room light or the skin's sheen as `harp fit` takes it: None (the
-    option left out) where the panel leaves it to the preset."""
+    """A panel choice of the room light, the skin's sheen or the light's size as `harp fit` takes
+    it: None (the option left out) where the panel leaves it to the preset."""
     return None if choice == "preset" else choice
 
 

@@ -25,7 +25,7 @@ class HARP_PT_panel(bpy.types.Panel):
 
         box = layout.box()
         box.label(text="2. Fit", icon="MOD_ARMATURE")
-        for name in ("preset", "shadows", "environment", "specular", "init", "avatar"):
+        for name in ("preset", "shadows", "environment", "specular", "light_size", "init", "avatar"):
             box.prop(settings, name)
         row = box.row(align=True)
         row.enabled = not busy

@@ -27,6 +27,10 @@ SPECULARS = [("preset", "As the preset", "Auto in Fast, Full and Paper, Off in P
                               "of the light"),
              ("on", "On", "Always fit the skin's sheen"),
              ("off", "Off", "A matte skin (HARP's)")]
+LIGHT_SIZES = [("preset", "As the preset", "Auto in Fast, Full and Paper, a point light in Preview"),
+               ("auto", "Auto", "A point light or a disc 6-19 degrees across (a lamp's shade, a window), whichever "
+                                "casts the footage's shadows: soft shadows in renders and in the bound sun"),
+               ("off", "Point", "A point light's hard shadows (HARP's)")]
 SIDES = [("auto", "Auto", "Tell from the footage (MediaPipe)"), ("right", "Right", ""), ("left", "Left", "")]
 RIG_KINDS = [("mixamo", "Mixamo", "Bones named mixamorig:RightHandIndex1 ..."),
              ("rigify", "Rigify", "A generated Rigify rig: the hand's IK control hand_ik.R, the fingers' FK controls "
@@ -50,6 +54,7 @@ class HarpSettings(bpy.types.PropertyGroup):
     shadows: EnumProperty(name="Shadows", items=SHADOWS, default="auto")
     environment: EnumProperty(name="Room light", items=ENVIRONMENTS, default="preset")
     specular: EnumProperty(name="Skin sheen", items=SPECULARS, default="preset")
+    light_size: EnumProperty(name="Light size", items=LIGHT_SIZES, default="preset")
     init: EnumProperty(name="Start from", items=INITS, default="mediapipe")
     avatar: StringProperty(name="Avatar", subtype="DIR_PATH", description="Avatar folder (written by Fit)")
     pack_on_bind: BoolProperty(name="Pack images", default=False,

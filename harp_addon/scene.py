@@ -28,7 +28,8 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
-from .core import avatar_folder, camera, environment_light, pose_smoothing, rotations, sequence_folder, specular_lobe
+from .core import (avatar_folder, camera, environment_light, light_size, pose_smoothing, rotations, sequence_folder,
+                   specular_lobe)
 from .rig import build_hand_rig
 
 CAPTURE_TO_WORLD = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])
@@ -279,6 +280,7 @@ def _fitted_light(name, collection, space, files, scene):
     # the hand shadows itself from this light only where the fit decided it does: a fit without
     # self-shadowing lit the far side of a finger from a light behind the hand (docs/blender.md)
     data.use_shadow = bool(light.get("shadows", False))
+    data.angle = light_size.sun_angle(light)     # a fitted light with a size: a sun that wide, soft shadows as the fit's
     sun = bpy.data.objects.new(f"{name} light", data)
     collection.objects.link(sun)
     sun.parent = space

@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from .formats import avatar_folder as av
-from .formats import colour_model, environment_light, specular_lobe
+from .formats import colour_model, environment_light, light_size, specular_lobe
 from .formats import hand_model_file as fmt
 from .handmodel.lbs import HandModel
 from .handmodel.poses import NAMED_POSES
@@ -80,6 +80,7 @@ def render_avatar(folder, out, pose="rest", frame=None, azimuth=0.0, elevation=0
                         appearance=appearance,
                         light=Light(light_position, ambient, shadows=use_shadows, environment=environment,
                                     specular=specular, linear=colour_model.is_linear(fitted), occlusion=occlusion,
+                                    angular_radius=light_size.from_description(fitted),
                                     bounce=None if occlusion is None else bounce_radiance(
                                         appearance.albedo, ambient, colour_model.is_linear(fitted))),
                         background=torch.tensor(background))

@@ -107,7 +107,8 @@ def _fit(args):
                  known_appearance=args.known_appearance, observers=observers, max_steps=args.max_steps,
                  exposure=args.exposure, solve_albedo=args.solve_albedo, budget_seconds=args.budget,
                  validation_frames=args.validation_frames, workers=args.workers, environment=args.environment,
-                 specular=args.specular, colour_model=args.colour_model, occlusion=args.occlusion,
+                 specular=args.specular, light_size=args.light_size, colour_model=args.colour_model,
+                 occlusion=args.occlusion,
                  restart_lost_frames=args.restart_lost_frames, albedo_facing=args.albedo_facing,
                  light_search=args.light_search, solve_resolution=args.solve_resolution,
                  size_anchor=args.size_anchor, size_tolerance=args.size_tolerance, size_measure=args.size_measure,
@@ -261,6 +262,11 @@ def build_parser():
                      help="the skin's specular lobe (a fitted roughness and sheen, carried into Blender's Principled "
                           "BSDF): auto (default) keeps it where its highlights are at least 3%% of the colour they lie on, "
                           "on, or off (docs/fidelity.md)")
+    fit.add_argument("--light-size", choices=("auto", "off"), default=None,
+                     help="the light's size: auto (default) tries a point light and discs 6-19 degrees in radius "
+                          "(a lamp's shade, a window) once the stages are done and keeps the one whose shadows "
+                          "explain the frames best (soft shadows in every render and in Blender's sun); off keeps a "
+                          "point light. Only a fit with self-shadowing has shadows to soften (docs/fidelity.md)")
     fit.add_argument("--colour-model", choices=("display", "linear"), default=None,
                      help="how the albedo and light make the frames' values: linear (default) decodes sRGB, shades "
                           "in linear light and encodes, as a camera and Blender do, so the bound avatar renders as "

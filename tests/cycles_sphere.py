@@ -19,6 +19,13 @@ def render_sphere(material, size, samples, tmp_path):
     scene.collection.objects.link(camera)
     camera.location, camera.rotation_euler = (0.0, -5.0, 0.0), (np.pi / 2, 0.0, 0.0)
     scene.camera = camera
+    return render_direct_light(size, samples, tmp_path / "sphere.exr")
+
+
+def render_direct_light(size, samples, path):
+    """(size, size, 3) linear radiance of the current scene from its camera, Cycles with direct
+    light only and no denoising, written to `path` (EXR) and read back, row 0 at the top."""
+    scene = bpy.context.scene
     scene.render.engine = "CYCLES"
     scene.cycles.samples, scene.cycles.use_denoising, scene.cycles.seed = samples, False, 0
     scene.cycles.max_bounces = 0
@@ -26,9 +33,9 @@ def render_sphere(material, size, samples, tmp_path):
     scene.render.resolution_percentage = 100
     scene.view_settings.view_transform = "Standard"
     scene.render.image_settings.file_format = "OPEN_EXR"
-    scene.render.filepath = str(tmp_path / "sphere.exr")
+    scene.render.filepath = str(path)
     bpy.ops.render.render(write_still=True)
-    image = bpy.data.images.load(str(tmp_path / "sphere.exr"))
+    image = bpy.data.images.load(str(path))
     return np.array(image.pixels[:], dtype=np.float64).reshape(size, size, 4)[::-1, :, :3]
 
 

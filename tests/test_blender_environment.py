@@ -76,9 +76,9 @@ def test_without_an_environment_the_world_is_the_ambient_share():
     assert not any(node.bl_idname == "ShaderNodeTexEnvironment" for node in world.node_tree.nodes)
 
 
-@pytest.mark.parametrize("shadows", [False, True])
-def test_the_bound_sun_shines_from_the_fitted_light_and_shadows_only_as_the_fit_did(shadows):
-    """A fit without self-shadowing lit the hand's far side too: its sun casts no shadow then."""
+def bound_sun(light, transl):
+    """The sun the bind makes of avatar.json's `light` for a hand at `transl` (F, 3), in a fresh
+    scene whose capture space has the bind's orientation."""
     from types import SimpleNamespace
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -88,9 +88,15 @@ def test_the_bound_sun_shines_from_the_fitted_light_and_shadows_only_as_the_fit_
     space = bpy.data.objects.new("space", None)
     collection.objects.link(space)
     space.matrix_world = harp_scene.Matrix(harp_scene.CAPTURE_TO_WORLD.tolist())
-    files = SimpleNamespace(description={"light": {"ambient": 0.3, "position": [0.1, -0.3, 0.2], "shadows": shadows}},
-                            poses=SimpleNamespace(transl=np.array([[0.0, 0.0, 0.4], [0.0, 0.02, 0.4]])))
-    sun = harp_scene._fitted_light("test", collection, space, files, scene)
+    files = SimpleNamespace(description={"light": light}, poses=SimpleNamespace(transl=np.asarray(transl)))
+    return harp_scene._fitted_light("test", collection, space, files, scene)
+
+
+@pytest.mark.parametrize("shadows", [False, True])
+def test_the_bound_sun_shines_from_the_fitted_light_and_shadows_only_as_the_fit_did(shadows):
+    """A fit without self-shadowing lit the hand's far side too: its sun casts no shadow then."""
+    sun = bound_sun({"ambient": 0.3, "position": [0.1, -0.3, 0.2], "shadows": shadows},
+                    [[0.0, 0.0, 0.4], [0.0, 0.02, 0.4]])
     assert sun.data.type == "SUN" and sun.data.use_shadow is shadows
     assert sun.data.energy == pytest.approx(np.pi * 0.7)
     bpy.context.view_layer.update()
@@ -98,3 +104,15 @@ def test_the_bound_sun_shines_from_the_fitted_light_and_shadows_only_as_the_fit_
     towards = np.array([0.0, 0.01, 0.4]) - np.array([0.1, -0.3, 0.2])   # from the light to the hand
     expected = harp_scene.CAPTURE_TO_WORLD[:3, :3] @ (towards / np.linalg.norm(towards))
     assert np.abs(shining - expected).max() < 1e-6
+
+
+@pytest.mark.parametrize("angular_radius", [None, 0.2])
+def test_the_bound_sun_is_as_wide_as_the_fitted_light(angular_radius):
+    """A fitted light with a size (formats/light_size.py) binds as a sun of that angular diameter,
+    whose shadows Cycles softens as the fit's renderer does (tests/test_blender_soft_shadows.py);
+    an avatar from before the size, a point light's: a sun of no width."""
+    light = {"ambient": 0.3, "position": [0.1, -0.3, 0.2], "shadows": True}
+    if angular_radius is not None:
+        light["angular_radius"] = angular_radius
+    sun = bound_sun(light, [[0.0, 0.0, 0.4]])
+    assert sun.data.angle == pytest.approx(2 * (angular_radius or 0.0), abs=1e-6)

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..formats import colour_model, environment_light, specular_lobe
+from ..formats import colour_model, environment_light, light_size, specular_lobe
 from ..formats import sequence_folder as seq
 from ..render.renderer import Light
 
@@ -58,7 +58,7 @@ def fitted_light(description, metadata, frame):
     return Light(position, torch.tensor(float(light["ambient"])), shadows=bool(light["shadows"]),
                  environment=None if environment is None else torch.as_tensor(environment, dtype=torch.float32),
                  specular=None if lobe is None else tuple(torch.tensor(value) for value in lobe),
-                 linear=colour_model.is_linear(light))
+                 linear=colour_model.is_linear(light), angular_radius=light_size.from_description(light))
 
 
 def cycles_truth(sequence, framings):

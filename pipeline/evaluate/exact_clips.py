@@ -16,7 +16,7 @@ import torch
 
 from synth.viewpoint import place_hand, view_rotation
 
-from ..formats import environment_light, specular_lobe
+from ..formats import environment_light, light_size, specular_lobe
 from ..formats import sequence_folder as seq
 from ..formats.colour_model import KEY, LINEAR, checked
 from ..formats.camera import project
@@ -75,7 +75,8 @@ def posed_box(model, pose, betas):
 
 def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=(0.0, 0.0), azimuth=0.0, betas=None,
                turn_degrees=TURN_DEGREES, mode="hand", environment=None, specular=None, shadows=False,
-               light_position=LIGHT_POSITION, colour_model=LINEAR, occlusion=False, ambient=AMBIENT):
+               light_position=LIGHT_POSITION, colour_model=LINEAR, occlusion=False, ambient=AMBIENT,
+               angular_radius=0.0):
     """Render `frames` frames of the hand in `pose` ((16, 3) or (F, 16, 3) axis-angle, radians,
     right hand) into the sequence folder `folder` with its exact ground truth (gt.npz,
     gt_albedo.png). The hand (its bounding box in frame 0's pose, centred) is 80% of the image
@@ -88,8 +89,9 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
     gives the skin a specular lobe (formats/specular_lobe.py); `shadows` draws the point light's
     self-shadows (at `light_position`, camera frame, metres); `colour_model` (formats/colour_model.py)
     shades in linear light (as a camera sees) or the albedo's values as they are; `occlusion` holds the
-    room light back where the hand is in its own way (render/occlusion.py; FitSettings.occlusion).
-    Returns the SequenceInfo."""
+    room light back where the hand is in its own way (render/occlusion.py; FitSettings.occlusion);
+    `angular_radius` (radians) gives the point light a size (render/area_light.py: soft shadows, 64
+    points of it). Returns the SequenceInfo."""
     model = HandModel.load(mode, "right", dtype=torch.float64)
     betas = np.broadcast_to(np.asarray(0.0 if betas is None else betas, dtype=np.float64), (model.num_betas,)).copy()
     pose = np.broadcast_to(np.asarray(pose, dtype=np.float64), (frames, 16, 3)).copy()
@@ -118,7 +120,7 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
                       linear=checked(colour_model) == LINEAR,
                       occlusion=hand_lost_light(out.vertices, model.data) if occlusion else None,
                       bounce=bounce_radiance(torch.as_tensor(albedo), ambient, checked(colour_model) == LINEAR)
-                      if occlusion else None)
+                      if occlusion else None, angular_radius=angular_radius, samples=64)
         images = render(out.vertices, mesh, torch.as_tensor(K), size, size, outputs=("rgb", "alpha"),
                         appearance=Appearance(torch.as_tensor(albedo)), light=light,
                         background=torch.tensor(BACKGROUND, dtype=torch.float64))
@@ -138,7 +140,8 @@ def write_clip(folder, pose, frames=4, size=96, focal=None, hand_px=None, shift=
                "shadows": shadows,
                "environment": environment_light.to_description(environment),
                specular_lobe.KEY: specular_lobe.to_description(*(specular or (None, None))),
-               KEY: colour_model, "occlusion": bool(occlusion)}))
+               KEY: colour_model, "occlusion": bool(occlusion),
+               light_size.KEY: light_size.to_description(angular_radius)}))
     seq.write_png(folder / seq.GT_ALBEDO_FILE, _to_uint8(albedo.transpose(1, 2, 0)))
     seq.write_sequence_info(folder, info)
     return info

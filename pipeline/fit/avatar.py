@@ -46,8 +46,13 @@ TEXTURES = ("albedo", "normal_map")
 LIGHT = ("light_position", "ambient_logit", "environment")
 MATERIAL = ("roughness_logit", "specular_logit")   # the skin's specular lobe
 APPEARANCE = TEXTURES + LIGHT + MATERIAL
-# buffers that say which parts of the light and material are in use (saved with the avatar)
-SWITCHES = ("environment_on", "specular_on")
+# buffers that say which parts of the light and material are in use, and the light's size (saved with the avatar)
+SWITCHES = ("environment_on", "specular_on", "light_angle")
+# the points a light with a size is shaded over in the fit's solves and scores (render/area_light.py; each costs
+# a shadow map): 16 keep a straight shadow edge's penumbra within 0.07 of the analytic one, 64 within 0.02
+# (tests/test_area_light.py); the albedo solves of a 24-frame clip took 21 s with 8, 31 s with 16, 13 s with a
+# point light (docs/fidelity.md, "The light's size")
+AREA_SAMPLES = 8
 # a frame's room-light occlusion is measured again once its hand or a joint has turned by this much (radians)
 # or the shape has changed by this much (standard deviations) since it was last measured
 OCCLUSION_POSE_TOLERANCE = 0.1
@@ -93,6 +98,9 @@ class Avatar(torch.nn.Module):
         for name, value in initial_material().items():
             setattr(self, name, parameter(value))
         self.register_buffer("specular_on", torch.zeros((), dtype=torch.bool, device=device))
+        # the light's angular radius (radians; formats/light_size.py), decided after the stages (fit/light_size.py)
+        self.register_buffer("light_angle", torch.zeros((), dtype=dtype, device=device))
+        self.area_samples = AREA_SAMPLES
         # the wrist joint rotates the hand against the forearm: free only with a forearm
         self.register_buffer("pose_mask", torch.ones(16, 3, dtype=dtype, device=device))
         if model.mode == "hand":
@@ -142,14 +150,18 @@ class Avatar(torch.nn.Module):
         balance did to them."""
         return torch.exp(self.exposure[batch])[:, None, None, :]
 
-    def light(self, shadows=False, batch=None, vertices=None):
+    def light(self, shadows=False, batch=None, vertices=None, samples=None):
         """The light of the frames `batch` posed as `vertices` (B, V, 3) (the subdivided mesh), with
-        their room-light occlusion when it is on; without them, a light with none."""
+        their room-light occlusion when it is on; without them, a light with none. A light with a
+        size (`light_angle`) is shaded over `samples` points of it (default `area_samples`); the
+        gradient steps ask for 1, its centre (a point light: each point costs a shadow map)."""
         occlusion = None if batch is None or not self.occlusion else self.room_occlusion(batch, vertices)
         return Light(self.light_position, self.ambient, shadows=shadows,
                      environment=self.environment if bool(self.environment_on) else None, specular=self.specular(),
                      linear=self.linear_light, occlusion=occlusion,
-                     bounce=None if occlusion is None else bounce_radiance(self.albedo, self.ambient, self.linear_light))
+                     bounce=None if occlusion is None else bounce_radiance(self.albedo, self.ambient, self.linear_light),
+                     angular_radius=float(self.light_angle),
+                     samples=self.area_samples if samples is None else samples)
 
     @torch.no_grad()
     def measure_occlusion(self, batch_size=8, exact=False):

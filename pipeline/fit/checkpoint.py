@@ -22,12 +22,13 @@ from .settings import FitSettings
 
 CHECKPOINT_FILE = "checkpoint.pt"
 CHECKPOINT_FORMAT = "harp-fit-checkpoint"
-CHECKPOINT_VERSION = 6          # 3: per-frame exposure gains (avatar "exposure", settings.exposure); 4: the
+CHECKPOINT_VERSION = 7          # 3: per-frame exposure gains (avatar "exposure", settings.exposure); 4: the
 #                                 schedule in force in the state (a budget no longer rewrites the settings),
 #                                 the validation checks and the best one's avatar; 5: the environment light;
-#                                 6: the specular lobe
-READABLE_VERSIONS = (2, 3, 4, 5, 6)   # a finished fit of version 2 reads as one with its gains off, before 5
-#                                       without an environment light, before 6 without a specular lobe
+#                                 6: the specular lobe; 7: the light's size (avatar "light_angle")
+READABLE_VERSIONS = (2, 3, 4, 5, 6, 7)   # a finished fit of version 2 reads as one with its gains off, before 5
+#                                          without an environment light, before 6 without a specular lobe, before 7
+#                                          with a point light
 
 
 @dataclasses.dataclass
@@ -70,6 +71,7 @@ class FitState:
     best: dict | None = None            # the best check's psnr, stage and step (its avatar: Checkpoint.best_avatar)
     environment: dict | None = None     # `auto` environment light, once decided: on, relative_strength
     specular: dict | None = None        # `auto` specular lobe, once decided: on, share, highlight, roughness, level
+    light_size: dict | None = None      # `auto` light size, once decided (light_size.decide_light_size): degrees, ...
     restarted: dict | None = None       # lost_frames.restart_lost_frames' figures, once it has run (after the alignment)
     light_search: dict | None = None    # light_search.search_light's figures, once it has run (before the light moves)
     size_anchor: float | None = None    # the size the size_prior term holds with size_anchor "alignment", once set
@@ -158,6 +160,11 @@ def load_checkpoint(path, device=None) -> Checkpoint:
         for saved_avatar in (avatar, saved.get("best_avatar")):
             if saved_avatar is not None:
                 _without_specular(saved_avatar)
+    if version < 7:      # a point light
+        for saved_avatar in (avatar, saved.get("best_avatar")):
+            if saved_avatar is not None:
+                saved_avatar["light_angle"] = torch.zeros((), dtype=saved_avatar["ambient_logit"].dtype,
+                                                          device=saved_avatar["ambient_logit"].device)
     return Checkpoint(settings, FitState.from_dict(state), avatar, saved["optimiser"], saved["generator"],
                       saved.get("best_avatar"), version)
 

@@ -26,7 +26,7 @@ class BatchData:
         self.images = render(self.vertices, avatar.coarse_mesh if stage.coarse else avatar.mesh, self.view.K[frames],
                              self.view.height, self.view.width, outputs=("alpha", "rgb") if shaded else ("alpha",),
                              appearance=avatar.appearance() if shaded else None,
-                             light=avatar.light(shadows, None if stage.coarse else frames, self.vertices)
+                             light=avatar.light(shadows, None if stage.coarse else frames, self.vertices, samples=1)
                              if shaded else None,
                              background=torch.zeros(3, dtype=self.vertices.dtype, device=self.vertices.device))
         self.masks = self.view.masks[frames]

@@ -29,6 +29,7 @@ import torch
 
 from .budget import REPLAN_STEPS, BudgetKeeper
 from .checkpoint import FitState
+from .light_probe import PROBE_FRAMES
 from .schedule import SHADOWS_DECIDED_IN, Schedule, StageKind, StepKind, step_kind
 from .stage_run import StageRun, stage_has_work
 
@@ -53,6 +54,12 @@ FILL_SECONDS = 4.5
 LIGHT_SOLVE_SECONDS = 7.4
 FINER_FRAME_PASSES = 1.4
 FINER_TEXTURE_SECONDS = 3.0
+# where the light's size is decided (light_size.py: shadows may be on): its three probe scores, this many joint-step
+# passes over each probe frame (the phone-like clip's 3 fits: 22-27 s for 23 frames at about 0.08 s a frame-pass),
+# and the solves' frame passes this many times dearer for a light with a size (8 points: 21 s against 13 for a
+# point light over 24 frames; docs/fidelity.md, "The light's size")
+LIGHT_SIZE_PROBE_PASSES = 13.0
+AREA_SOLVE_FACTOR = 1.6
 
 
 # seconds per step at 256 px and batches of 6 (the alignment's: per frame, at 128 px, fast's 256 halved by
@@ -110,15 +117,22 @@ def fallback_costs(settings, frame_count) -> StepCosts:
 
 
 def after_stages_seconds(seconds, settings, frame_count) -> float:
-    """Seconds of the work after the stages of a fit with step costs `seconds` ({StepKind: s})."""
-    frames = seconds[StepKind(StageKind.JOINT)] / settings.batch_size * frame_count   # one joint pass over them
+    """Seconds of the work after the stages of a fit with step costs `seconds` ({StepKind: s});
+    where the light's size may be decided, as if it were given one (the dearer case)."""
+    per_frame = seconds[StepKind(StageKind.JOINT)] / settings.batch_size
+    frames = per_frame * frame_count   # one joint pass over them
     texels = (settings.texture_size / 256) ** 2
     total = OUTPUT_FRAME_PASSES * frames + FILL_SECONDS * texels
     if settings.solve_albedo:
-        total += SOLVE_FRAME_PASSES * frames + (LIGHT_SOLVE_SECONDS * texels if settings.environment != "off" else 0.0)
+        sized = settings.light_size == "auto" and settings.shadows != "off"
+        area = AREA_SOLVE_FACTOR if sized else 1.0
+        total += area * SOLVE_FRAME_PASSES * frames + (LIGHT_SOLVE_SECONDS * texels if settings.environment != "off"
+                                                       else 0.0)
         if settings.solve_resolution and settings.solve_resolution > settings.resolution:
-            total += (FINER_FRAME_PASSES * (settings.solve_resolution / settings.resolution) ** 2 * frames
+            total += (area * FINER_FRAME_PASSES * (settings.solve_resolution / settings.resolution) ** 2 * frames
                       + FINER_TEXTURE_SECONDS * texels)
+        if sized:
+            total += LIGHT_SIZE_PROBE_PASSES * per_frame * min(frame_count, PROBE_FRAMES)
     return total
 
 

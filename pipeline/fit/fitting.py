@@ -20,15 +20,17 @@ import torch
 from ..formats.environment_light import colour_strength, relative_strength
 from ..formats.initial_estimate import read_initial_estimate
 from ..formats.sequence_folder import validate_sequence_folder
-from .albedo_solve import decided_texels, solve_avatar_albedo, solved_albedo
+from .albedo_solve import decided_texels, solve_avatar_albedo
 from .avatar import APPEARANCE, SHAPE, SWITCHES
 from .checkpoint import CHECKPOINT_FILE, CHECKPOINT_VERSION, Checkpoint, FitState, load_checkpoint, save_checkpoint
 from .budget import BudgetKeeper
 from .estimate import FitEstimate, active_stages, measure_step_costs
 from .frames import held_out_frames, select_frames, validation_frames
+from .light_probe import probe_frames, probe_l1
 from .light_search import search_light
+from .light_size import decide_light_size
 from .lost_frames import LOST_IOU, anchor_restarted, frames_kept, frames_off_their_silhouettes, restart_lost_frames
-from .outputs import masked_l1, write_outputs
+from .outputs import write_outputs
 from .problem import FitError, FitProblem, build_problem
 from .progress import Progress, duration_text
 from .schedule import SHADOWS_DECIDED_IN, StageKind, step_kind
@@ -38,14 +40,9 @@ from .stage_run import StageRun
 from .texture_fill import fill_avatar_albedo
 from .validation import Validator, restore_best
 
-# `shadows auto` renders this many fitted frames (spread over the clip) with and without self-shadowing
-# and keeps whichever matches them better. A fitted ambient ratio (the earlier rule: shadows under 0.75)
-# could not tell a dominant light that casts shadows from one that casts none: it said on for the
-# exact clips, drawn without shadows (ratio 0.56: 36.3 dB without, 32.1 with), as for the Cycles sun
-# clip (ratio 0.57: 28.2 dB without, 29.4 with) (docs/fit.md)
-SHADOW_PROBE_FRAMES = 24
-# ...each with its albedo solved from them. Where the point light carries most of the light (a fitted ambient
-# ratio under SHADOW_DOMINANT_AMBIENT) shadows stay on unless the renders with them are further from the frames
+# `shadows auto` renders light_probe.PROBE_FRAMES fitted frames with and without self-shadowing, each with its
+# albedo solved from them, and keeps whichever matches them better. Where the point light carries most of the
+# light (a fitted ambient ratio under SHADOW_DOMINANT_AMBIENT) shadows stay on unless the renders with them are further from the frames
 # by more than SHADOW_TOLERANCE of the L1: on the phone-like clip's three fits (a window's soft light from one
 # side, ambient 0.23) the L1 with shadows was 0.989 / 0.992 / 1.008 of that without, and the albedo solved with
 # them 1.2-1.3 dB nearer the truth on each. Where the room's light dominates, a point light's shadows are a
@@ -71,7 +68,7 @@ ENVIRONMENT_MIN_FRAMES = 8
 SPECULAR_THRESHOLD = 0.03
 KNOWN_APPEARANCE = SHAPE + APPEARANCE   # what a fit with known appearance takes from another fit, frozen
 # settings of what runs after the stages: a resumed fit may change them (they do not touch the checkpoint)
-AFTER_THE_STAGES = ("solve_albedo", "solve_resolution")
+AFTER_THE_STAGES = ("solve_albedo", "solve_resolution", "light_size")
 # the key of FitState.albedo_solve that holds the figures of its finer pass (albedo alone, at solve_resolution)
 FINER_SOLVE = "finer"
 # a budgeted fit resumes with a new budget, or without one on the schedule it had (FitState.schedule)
@@ -280,6 +277,10 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
     if solving and (state.albedo_solve is None or state.texture_fill is None):
         with timed("albedo_solve"):
             painting = _painting_frames(problem, state, reporter)
+    if state.light_size is None and problem.settings.light_size == "auto" and solving:
+        with timed("light_decisions"):
+            _decide_light_size(problem, state, reporter, painting)
+        save()
     if state.albedo_solve is None and solving:
         with timed("albedo_solve"):
             state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on, frames=painting)
@@ -372,8 +373,8 @@ def _short_budget_note(budget, preset):
 
 def _decide_shadows(problem, run, reporter):
     """Self-shadowing pays off where the scene's light casts shadows: `auto` decides half-way
-    through the joint stage by rendering up to SHADOW_PROBE_FRAMES fitted frames with and without
-    it, each with the albedo solved from those frames for it (the light held; _probe_l1): the
+    through the joint stage by rendering up to light_probe.PROBE_FRAMES fitted frames with and without
+    it, each with the albedo solved from those frames for it (the light held; probe_l1): the
     avatar has been fitted without shadows so far, and its albedo has taken in every shadow the
     frames show alike, which a render with shadows would then darken twice. Shadows are kept
     unless they take the renders further from the frames (L1 in the masks) by more than
@@ -385,9 +386,9 @@ def _decide_shadows(problem, run, reporter):
     decision = run.state.shadows
     if decision.decided or run.stage.kind is not SHADOWS_DECIDED_IN or run.state.step < run.stage.steps // 2:
         return
-    probe = shadow_probe_frames(len(problem.frames))
+    probe = probe_frames(len(problem.frames))
     with torch.no_grad():
-        without, with_shadows = (_probe_l1(problem, shadows, probe) for shadows in (False, True))
+        without, with_shadows = (probe_l1(problem, shadows, probe) for shadows in (False, True))
     decision.ambient_at_decision = problem.avatar.ambient.item()
     lean = SHADOW_TOLERANCE if decision.ambient_at_decision < SHADOW_DOMINANT_AMBIENT else -SHADOW_TOLERANCE
     decision.on, decision.decided = bool(with_shadows < without * (1 + lean)), True
@@ -395,26 +396,6 @@ def _decide_shadows(problem, run, reporter):
     reporter.log(f"shadows auto: L1 in the masks of {len(probe)} fitted frames {without:.4f} without self-shadowing, "
                  f"{with_shadows:.4f} with -> {'on' if decision.on else 'off'} (fitted ambient ratio "
                  f"{decision.ambient_at_decision:.2f})")
-
-
-def shadow_probe_frames(count) -> np.ndarray:
-    """The fitted frames (indices) the `auto` shadow decision renders: up to SHADOW_PROBE_FRAMES of
-    `count`, spread evenly over the clip."""
-    return np.unique(np.linspace(0, count - 1, min(count, SHADOW_PROBE_FRAMES)).round().astype(int))
-
-
-def _probe_l1(problem, shadows, probe):
-    """masked_l1 of the fitted frames `probe` with the albedo solved from them for `shadows` (the
-    light held); the avatar's albedo is left as it was."""
-    albedo = problem.avatar.albedo
-    kept = albedo.detach().clone()
-    solved_colours, solved = solved_albedo(problem, shadows, frames=probe, solve_environment=False)
-    solved = solved & (problem.uv_mask.to(solved.device) > 0)
-    albedo.copy_(torch.where(solved[None], solved_colours, kept))
-    try:
-        return masked_l1(problem, shadows, probe)
-    finally:
-        albedo.copy_(kept)
 
 
 def _decide_light(problem, state, reporter, solved, frames=None):
@@ -426,6 +407,19 @@ def _decide_light(problem, state, reporter, solved, frames=None):
     switched_off = _decide_specular(problem, state, reporter) or switched_off
     if switched_off and solved is not None:
         state.albedo_solve = solve_avatar_albedo(solved, state.shadows.on, frames=frames)
+
+
+def _decide_light_size(problem, state, reporter, painting):
+    """`auto` light size (light_size.py), decided once before the albedo solve, on the probe frames
+    among those the solve reads."""
+    probe = probe_frames(len(problem.frames), kept=painting)
+    state.light_size = decide_light_size(problem, state.shadows.on, probe)
+    if not state.light_size["candidates"]:
+        reporter.log("light size auto: no self-shadowing, so no shadows to soften -> a point light")
+        return
+    scores = ", ".join(f"{float(d):g} deg {l1:.4f}" for d, l1 in state.light_size["candidates"].items())
+    reporter.log(f"light size auto: L1 in the masks of {len(probe)} fitted frames, the light's angular radius: "
+                 f"{scores} -> {state.light_size['degrees']:g} deg")
 
 
 def _painting_frames(problem, state, reporter):

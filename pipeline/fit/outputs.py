@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import time
 from pathlib import Path
@@ -14,7 +15,7 @@ import torch
 
 from .. import metrics
 from ..formats import avatar_folder as av
-from ..formats import colour_model, environment_light, specular_lobe
+from ..formats import colour_model, environment_light, light_size, specular_lobe
 from ..formats.fit_report import HELD_OUT_FRAMES, write_report
 from ..render.renderer import render
 
@@ -134,6 +135,8 @@ def write_outputs(out, problem, state, held_out=(), estimate=None, validation_fr
         "albedo_solve_left_out": state.solve_left_out,
         "environment": {"requested": settings.environment, "decision": state.environment,
                         "coefficients": environment_light.to_description(avatar.light().environment)},
+        "light_size": {"requested": settings.light_size, "decision": state.light_size,
+                       "degrees": round(math.degrees(avatar.light_angle.item()), 3)},
         "specular": {"requested": settings.specular, "decision": state.specular,
                      "lobe": specular_lobe.to_description(*(avatar.specular() or (None, None)))},
         "exposure": {"decision": problem.exposure_note,
@@ -172,6 +175,7 @@ def _write_avatar(out, problem, state, shadows):
         "light": {"position": avatar.light_position.detach().cpu().tolist(), "ambient": avatar.ambient.item(),
                   "shadows": shadows, "environment": environment_light.to_description(avatar.light().environment),
                   specular_lobe.KEY: specular_lobe.to_description(*(avatar.specular() or (None, None))),
+                  light_size.KEY: light_size.to_description(avatar.light_angle),
                   colour_model.KEY: settings.colour_model, "occlusion": settings.occlusion == "on"},
         "camera": camera_description(clip),
         "footage": {"sequence": str(problem.sequence.resolve()), "fps": clip.info.fps,

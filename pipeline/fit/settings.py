@@ -75,6 +75,10 @@ class FitSettings:
     # the skin's specular lobe (a roughness and a level, formats/specular_lobe.py): auto | on | off; `auto` fits
     # it and keeps it where it carries a visible share of the light (fitting.py)
     specular: str = "auto"
+    # the light's size (render/area_light.py): "auto" tries a point and discs 6-19 degrees in radius after the
+    # stages and keeps the one whose shadows explain the frames best (light_size.py), "off" keeps HARP's point
+    # light. Only a fit with self-shadowing decides one
+    light_size: str = "auto"
     # how the albedo and light make the frames' values (formats/colour_model.py): "linear" (sRGB decoded, shaded
     # in linear light and encoded, as a camera and Blender do) or "display" (the frames' 8-bit values shaded as
     # they are, as HARP does and fits did before). linear, on 3 seeds: held-out PSNR level on the demo and the
@@ -144,6 +148,8 @@ class FitSettings:
             raise ValueError(f"occlusion must be 'on' or 'off', got {self.occlusion!r}")
         if self.restart_lost_frames not in ("on", "off"):
             raise ValueError(f"restart_lost_frames must be 'on' or 'off', got {self.restart_lost_frames!r}")
+        if self.light_size not in ("auto", "off"):
+            raise ValueError(f"light_size must be 'auto' or 'off', got {self.light_size!r}")
         if self.light_search not in ("on", "off"):
             raise ValueError(f"light_search must be 'on' or 'off', got {self.light_search!r}")
         if self.size_anchor not in ("initial", "alignment"):
@@ -192,6 +198,7 @@ class FitSettings:
         values.setdefault("stage_factors", {})
         values.setdefault("environment", "off")          # saved before the environment light
         values.setdefault("specular", "off")             # saved before the specular lobe
+        values.setdefault("light_size", "off")           # saved before the light had a size
         values.setdefault("final_rate_fraction", 1.0)    # saved before the learning rates fell
         values.setdefault("plateau_tolerance", 0.0)      # saved before the rates halved on a plateau
         values.setdefault("colour_model", "display")     # saved before the colour model was a choice: display
@@ -216,11 +223,11 @@ class FitSettings:
 PRESETS = {
     # a first look in under 2 minutes: 160 px, batches of 10 (each frame's pose visited about as often as in fast's
     # joint stage), a short alignment and joint stage, no appearance stage, and HARP's light alone (no environment
-    # light, no specular lobe: neither is fitted nor decided, so the albedo is solved once); on a 150-frame 448 px
+    # light, no specular lobe, a point light: none is fitted nor decided, so the albedo is solved once); on a 150-frame 448 px
     # clip with 2 threads, 102 s: joint error 5% and L1 9% above fast's (docs/performance.md, "A first avatar in
     # two minutes")
     "preview": dict(resolution=160, texture_size=256, batch_size=10, steps=(20, 170, 0), align_steps=50,
-                    environment="off", specular="off"),
+                    environment="off", specular="off", light_size="off"),
     # 100 appearance steps, not 200: the albedo is solved from the frames after the stages, and from the joint stage's
     # end of 3 phone-like and 3 demo fits the second hundred moved held-out PSNR by -0.07 to +0.22 dB and new poses by
     # -0.03 to +0.03 (the seeds' spread 0.2-0.5 dB), for 45-52 s (docs/performance.md, "The appearance stage halved")

@@ -14,6 +14,7 @@ import dataclasses
 import torch
 
 from ..formats.colour_model import linear_to_srgb, srgb_to_linear
+from . import area_light
 from . import fused as fused_ops
 from . import interpolate as reference_interpolate
 from . import occlusion as room_occlusion
@@ -109,6 +110,10 @@ class Light:
     occlusion: torch.Tensor | None = None
     # (3,) the light the skin sends back along a blocked direction (render/occlusion.py bounce_radiance); None: none
     bounce: torch.Tensor | None = None
+    # the light's angular radius seen from the hand (radians; render/area_light.py): its diffuse shading and shadows
+    # averaged over `samples` points of a disc that size; 0: a point light
+    angular_radius: float = 0.0
+    samples: int = 16
 
 
 def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appearance=None,
@@ -122,7 +127,8 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
     (3, the normal the light sees: the normal map's, camera frame; only with rgb), lost_light (9,
     the light's `occlusion` interpolated; only with rgb and an occlusion), position (3, the
     surface point, camera frame; only with rgb), light_visibility (1, the share of the point
-    light that reaches the point: its shadow test, 1 without shadows; only with rgb). With
+    light that reaches the point: its shadow test, 1 without shadows, the mean over its points for
+    a light with a size; only with rgb). With
     shading_normal, position, light_visibility and lost_light, lobe_colour gives the specular
     lobe's share of rgb at any pixel without a second render. alpha and rgb carry silhouette
     gradients when antialiased. fused=False takes the reference primitives (the same images and
@@ -178,8 +184,7 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
         lost = None
         if light.occlusion is not None:
             lost, = ops.interpolate_many([light.occlusion.to(points.dtype)], frags, faces)
-        visibility = _visibility(ops, points, faces, frags, position, light)
-        colour = _lit_colour(ops, frags, position, albedo, normal, light, visibility, lost)
+        colour, visibility = _lit_colour(ops, points, faces, frags, position, albedo, normal, light, lost)
         if "shading_normal" in outputs:
             result["shading_normal"] = to_image(normal, frags)
         if "lost_light" in outputs:
@@ -202,34 +207,53 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
     return result
 
 
-def _visibility(ops, points, faces, frags, position, light):
-    """(N, 1) the point light's visibility at each fragment (its shadow test), None without shadows."""
-    if not light.shadows:
-        return None
-    return ops.shadow_visibility(points, faces, position, frags, light.position.to(points.dtype),
-                                 light.shadow_resolution, light.shadow_target, light.shadow_radius)
+def _light_places(light, points):
+    """The points the light's diffuse shading is averaged over (area_light.light_points): its
+    position alone for a point light; for one with a size, points of a disc facing what the shadow
+    camera looks at (`shadow_target`, else each frame's mesh centre)."""
+    if light.angular_radius <= 0 or light.samples <= 1:
+        return [light.position.to(points.dtype)]
+    with torch.no_grad():
+        centre = (0.5 * (points.amin(1) + points.amax(1)) if light.shadow_target is None
+                  else light.shadow_target.to(points.dtype).expand(points.shape[0], 3))
+    position = light.position.to(points.dtype)
+    position = position.expand(points.shape[0], 3) if position.dim() == 1 else position
+    return area_light.light_points(position, centre, light.angular_radius, light.samples)
 
 
-def _light_position(light, dtype, frame):
-    """(N, 3) or (3,): the point light's position for fragments of frames `frame` (N,)."""
-    light_position = light.position.to(dtype)
+def _light_position(light_position, frame):
+    """(N, 3) or (3,): a light position ((3,) or one per frame (B, 3)) for fragments of frames `frame` (N,)."""
     return light_position[frame] if light_position.dim() == 2 else light_position
 
 
-def _lit_colour(ops, frags, position, albedo, normal, light, visibility=None, lost=None):
-    """The colour of each fragment: `albedo` (linear already in linear light) lit, the point light
-    seen as `visibility` says ((N, 1), None: unshadowed), less the room light the hand keeps from it
-    (`lost`, (N, 9) interpolated lost_light, or None), encoded to sRGB in linear light."""
-    light_position = _light_position(light, position.dtype, frags.frame)
-    colour = ops.lit_colour(albedo, normal, position, light_position, light.ambient, visibility)
+def _lit_colour(ops, points, faces, frags, position, albedo, normal, light, lost=None):
+    """(the colour of each fragment (N, C), the point light's visibility (N, 1) or None without
+    shadows): `albedo` (linear already in linear light) lit, the point light (or each point of an
+    area light, averaged) seen as its shadow test says, less the room light the hand keeps from it
+    (`lost`, (N, 9) interpolated lost_light, or None), encoded to sRGB in linear light. The
+    specular highlight is the light's centre's, under the mean visibility (lobe_colour's numbers)."""
+    places = _light_places(light, points)
+    colour, visibility = 0.0, None
+    for place in places:
+        seen = None
+        if light.shadows:
+            seen = ops.shadow_visibility(points, faces, position, frags, place, light.shadow_resolution,
+                                         light.shadow_target, light.shadow_radius)
+            visibility = seen if visibility is None else visibility + seen
+        colour = colour + ops.lit_colour(albedo, normal, position, _light_position(place, frags.frame), light.ambient,
+                                         seen)
+    if len(places) > 1:
+        colour = colour / len(places)
+        visibility = None if visibility is None else visibility / len(places)
     if light.environment is not None:
         colour = colour + albedo * reference_shading.environment_shading(normal, light.environment)
     if lost is not None:
         colour = colour - albedo * room_occlusion.lost_shading(lost, light.ambient, light.environment, light.bounce)
     if light.specular is not None:
-        for part in _lobe_parts(normal, position, light_position, light, visibility, lost):
+        centre = _light_position(light.position.to(position.dtype), frags.frame)
+        for part in _lobe_parts(normal, position, centre, light, visibility, lost):
             colour = colour + part
-    return linear_to_srgb(colour) if light.linear else colour
+    return (linear_to_srgb(colour) if light.linear else colour), visibility
 
 
 def lobe_colour(normal, position, light, frame, visibility=None, lost=None):
@@ -240,7 +264,7 @@ def lobe_colour(normal, position, light, frame, visibility=None, lost=None):
     shading normal, and `position` (N, 3) in the camera frame; `frame` (N,) each point's frame in
     the batch (for a light placed per frame); `light` a Light with a lobe. The same numbers as the
     lobe's share of render()'s rgb."""
-    highlight, room = _lobe_parts(normal, position, _light_position(light, position.dtype, frame), light,
+    highlight, room = _lobe_parts(normal, position, _light_position(light.position.to(position.dtype), frame), light,
                                   visibility, lost)
     return highlight + room
 
