@@ -14,6 +14,8 @@ import math
 
 import torch
 
+from .shadow_map import facing_frame
+
 GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
 
 
@@ -37,13 +39,8 @@ def light_points(position, centre, angular_radius: float, count: int) -> list:
     with torch.no_grad():
         towards = position.detach() - centre
         distance = towards.norm(dim=-1, keepdim=True).clamp(min=1e-6)
-        forward = towards / distance
-        helper = torch.tensor([0.0, 1.0, 0.0], dtype=forward.dtype, device=forward.device).expand_as(forward)
-        helper = torch.where((forward * helper).sum(-1, keepdim=True).abs() > 0.95,
-                             torch.tensor([1.0, 0.0, 0.0], dtype=forward.dtype, device=forward.device), helper)
-        across = torch.nn.functional.normalize(torch.cross(helper, forward, dim=-1), dim=-1)
-        up = torch.cross(forward, across, dim=-1)
+        across, up = facing_frame(towards / distance)
         radius = distance * math.tan(angular_radius)
-        offsets = disc_offsets(count, forward.dtype, forward.device)
+        offsets = disc_offsets(count, towards.dtype, towards.device)
         shifts = [radius * (u * across + v * up) for u, v in offsets.tolist()]
     return [position + shift for shift in shifts]

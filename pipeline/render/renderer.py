@@ -213,9 +213,7 @@ def _light_places(light, points):
     camera looks at (`shadow_target`, else each frame's mesh centre)."""
     if light.angular_radius <= 0 or light.samples <= 1:
         return [light.position.to(points.dtype)]
-    with torch.no_grad():
-        centre = (0.5 * (points.amin(1) + points.amax(1)) if light.shadow_target is None
-                  else light.shadow_target.to(points.dtype).expand(points.shape[0], 3))
+    centre = reference_shadow_map.shadow_target(points, light.shadow_target)
     position = light.position.to(points.dtype)
     position = position.expand(points.shape[0], 3) if position.dim() == 1 else position
     return area_light.light_points(position, centre, light.angular_radius, light.samples)

@@ -43,16 +43,32 @@ def filter_taps(texel):
     return first.long() - 1, weights.reshape(-1, 16)
 
 
+def facing_frame(forward):
+    """(right, down) unit (..., 3) completing the unit directions `forward` (..., 3) to a right-handed
+    frame: right perpendicular to the y axis where it can be (the x axis where forward is within
+    18 degrees of y)."""
+    helper = torch.tensor([0.0, 1.0, 0.0], dtype=forward.dtype, device=forward.device).expand_as(forward)
+    helper = torch.where((forward * helper).sum(-1, keepdim=True).abs() > 0.95,
+                         torch.tensor([1.0, 0.0, 0.0], dtype=forward.dtype, device=forward.device), helper)
+    right = torch.nn.functional.normalize(torch.cross(helper, forward, dim=-1), dim=-1)
+    return right, torch.cross(forward, right, dim=-1)
+
+
+def shadow_target(points, target=None):
+    """(B, 3) what the shadow camera looks at: `target` ((3,) or (B, 3)), else each frame's mesh
+    centre (its bounding box's); no gradient."""
+    with torch.no_grad():
+        if target is not None:
+            return target.to(points.dtype).expand(points.shape[0], 3)
+        return 0.5 * (points.amin(1) + points.amax(1))
+
+
 def light_camera(light_position, centre, radius, resolution):
     """World-to-light rotation (B, 3, 3), light camera position (B, 3) and K (3, 3)."""
     direction = torch.nn.functional.normalize(light_position - centre, dim=-1)
     eye = centre + LIGHT_DISTANCE * direction
     forward = -direction
-    helper = torch.tensor([0.0, 1.0, 0.0], dtype=forward.dtype, device=forward.device).expand_as(forward)
-    helper = torch.where((forward * helper).sum(-1, keepdim=True).abs() > 0.95,
-                         torch.tensor([1.0, 0.0, 0.0], dtype=forward.dtype, device=forward.device), helper)
-    right = torch.nn.functional.normalize(torch.cross(helper, forward, dim=-1), dim=-1)
-    down = torch.cross(forward, right, dim=-1)
+    right, down = facing_frame(forward)
     rotation = torch.stack([right, down, forward], dim=1)
     half_angle = torch.asin((radius * 1.05 / LIGHT_DISTANCE).clamp(max=0.95))
     focal = (resolution / 2) / torch.tan(half_angle)
@@ -68,8 +84,8 @@ def light_view(points, light_position, resolution, target=None, radius=None):
     mesh in the light's frame (B, V, 3)); the framing (target, radius) carries no gradient."""
     batch = points.shape[0]
     light_position = light_position.expand(batch, 3) if light_position.dim() == 1 else light_position
+    centre = shadow_target(points, target)
     with torch.no_grad():
-        centre = 0.5 * (points.amin(1) + points.amax(1)) if target is None else target.expand(batch, 3)
         if radius is None:
             radius = (points - centre[:, None]).norm(dim=-1).amax()
         radius = torch.as_tensor(radius, dtype=points.dtype, device=points.device)
