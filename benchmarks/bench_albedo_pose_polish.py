@@ -1,6 +1,7 @@
 """Benchmark: the poses polished against the solved albedo, on a finished fit.
 
     .venv/bin/python benchmarks/bench_albedo_pose_polish.py FIT SEQ OUT [--steps 150] [--move-shape]
+        [--light-size] [--texture-size 512] [--solve-sequence SEQ_LARGER --solve-resolution 896]
 
 The fit's work after the stages done again on its final state (fitting._after_the_stages: the
 albedo and room light solved from the working frames, then the albedo alone from the frames at
@@ -11,13 +12,19 @@ move, the solved albedo and normal map stay (and the shape, unless --move-shape)
 pose steps ran against the albedo its gradient steps had made, blurrier than the solved one; these
 see the solved albedo's edges. `--steps 0`: the work after the stages done again, the reference.
 `--light-size`: the light's size decided before the first solve, as a fit with `light_size`
-"auto" does. The avatar (the fit folder with the new albedo.png) goes to OUT and is scored against the
-synthetic SEQ's true hand (evaluate/fidelity.py); one JSON line. The figures of docs/fidelity.md
+"auto" does. `--texture-size`: the albedo and normal map resampled to that size first, so the solves
+fill a finer (or coarser) texture. `--solve-sequence`: the same clip imported larger (the same crop,
+`harp import-video --size`), from which the frames are read (the working frames shrunk from it, the
+finer solve's at `--solve-resolution`, default the fit's). The avatar (the fit folder with the new
+albedo.png) goes to OUT and is scored against the synthetic SEQ's true hand (evaluate/fidelity.py),
+its sharpness also at 256 texels (each albedo shrunk to 256 against the truth at 256: the figure
+that compares texture sizes); one JSON line. The figures of docs/fidelity.md
 ("The poses polished against the solved albedo") come from this script.
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import shutil
 import sys
@@ -25,32 +32,60 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parent))   # albedo_ceiling
 
+import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from albedo_ceiling import problem_at  # noqa: E402
+from pipeline.evaluate.albedo import albedo_truth  # noqa: E402
 from pipeline.evaluate.fidelity import evaluate_fidelity  # noqa: E402
+from pipeline.evaluate.fidelity import sharpness_ratio  # noqa: E402
+from pipeline.evaluate.finished_fit import load_finished_fit  # noqa: E402
 from pipeline.fit.albedo_solve import decided_texels, solve_avatar_albedo  # noqa: E402
 from pipeline.fit.checkpoint import FitState  # noqa: E402
 from pipeline.fit.light_probe import probe_frames  # noqa: E402
 from pipeline.fit.light_size import decide_light_size  # noqa: E402
 from pipeline.fit.lost_frames import frames_kept, frames_off_their_silhouettes  # noqa: E402
+from pipeline.fit.problem import build_problem  # noqa: E402
 from pipeline.fit.schedule import Schedule, StageKind, StageSpec  # noqa: E402
 from pipeline.fit.stage_run import StageRun  # noqa: E402
+from pipeline.fit.texel_footprint import fitting_texture_size, pixel_footprint  # noqa: E402
 from pipeline.fit.texture_fill import fill_avatar_albedo  # noqa: E402
 from pipeline.formats import avatar_folder as av  # noqa: E402
 from pipeline.formats.png_file import write_png  # noqa: E402
 
 SHAPE = ("betas", "displacement")
+TEXTURES = ("albedo", "normal_map")
+COMPARED_SIZE = 256
 
 
-def polished(fit, sequence, steps, move_shape=False, seed=0, light_size=False):
+def replay_problem(fit, sequence, texture_size=None, solve_resolution=None):
+    """The fit's problem over its frames of `sequence`, every parameter as fitted, its textures
+    resampled to `texture_size` and its finer solve at `solve_resolution` where given; its shadows."""
+    saved, report = load_finished_fit(fit, "cpu")
+    state = dict(saved.avatar)
+    if texture_size and texture_size != state["albedo"].shape[-1]:
+        for name in TEXTURES:
+            resized = torch.nn.functional.interpolate(state[name][None], size=(texture_size, texture_size),
+                                                      mode="bilinear", align_corners=False)[0]
+            state[name] = resized if name == "albedo" else torch.nn.functional.normalize(resized, dim=0)
+    settings = saved.settings
+    if texture_size:
+        settings = dataclasses.replace(settings, texture_size=texture_size)
+    if solve_resolution:
+        settings = dataclasses.replace(settings, solve_resolution=solve_resolution)
+    problem = build_problem(Path(sequence), settings, report["frames"], "cpu", shared=state)
+    problem.avatar.load_state_dict(state)
+    return problem, bool(saved.state.shadows.on)
+
+
+def polished(fit, sequence, steps, move_shape=False, seed=0, light_size=False, texture_size=None,
+             solve_resolution=None):
     """The fit's avatar after the work after the stages with `steps` polishing steps (and with
-    `light_size`, the light's size decided first, as FitSettings.light_size "auto" does); seconds,
-    the light size's decision (None without it)."""
-    problem, shadows = problem_at(fit, sequence, None)
+    `light_size`, the light's size decided first, as FitSettings.light_size "auto" does; with
+    `texture_size` and `solve_resolution`, replay_problem's); seconds, the light size's decision
+    (None without it), {"pixel_footprint", "fitting_texture_size", "solve_px"} of the finer solve's frames."""
+    problem, shadows = replay_problem(fit, sequence, texture_size, solve_resolution)
     started = time.perf_counter()
     problem.avatar.measure_occlusion(exact=True)
     painting = frames_kept(frames_off_their_silhouettes(problem), len(problem.frames))   # as the fit leaves out
@@ -73,7 +108,19 @@ def polished(fit, sequence, steps, move_shape=False, seed=0, light_size=False):
     if seen is not problem:
         solve_avatar_albedo(seen, shadows, solve_environment=False, frames=painting)
     fill_avatar_albedo(problem.avatar, decided_texels(seen, frames=painting))
-    return problem.avatar, time.perf_counter() - started, decision
+    seconds = time.perf_counter() - started
+    footprint = pixel_footprint(seen)
+    texels = {"pixel_footprint": footprint, "fitting_texture_size": fitting_texture_size(footprint),
+              "solve_px": max(seen.clip.height, seen.clip.width)}
+    return problem.avatar, seconds, decision, texels
+
+
+def sharpness_at(albedo, sequence, size=COMPARED_SIZE):
+    """The sharpness ratio of an (H, W, 3) albedo shrunk (or grown) to `size` against the truth at `size`."""
+    image = cv2.resize(albedo, (size, size), interpolation=cv2.INTER_AREA if albedo.shape[0] > size
+                       else cv2.INTER_LINEAR)
+    truth = albedo_truth(sequence, size)
+    return sharpness_ratio(image, truth.image, truth.visible)
 
 
 def main():
@@ -85,17 +132,24 @@ def main():
     parser.add_argument("--move-shape", action="store_true", help="let the shape and displacements move too")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--light-size", action="store_true", help="decide the light's size first (light_size.py)")
+    parser.add_argument("--texture-size", type=int, help="resample the textures to this size first")
+    parser.add_argument("--solve-sequence", type=Path,
+                        help="the same clip imported larger: the frames the solves read (SEQ scores the avatar)")
+    parser.add_argument("--solve-resolution", type=int, help="the finer solve's frames (long side, px)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    avatar, seconds, decision = polished(args.fit, args.sequence, args.steps, args.move_shape,
-                                         light_size=args.light_size)
+    avatar, seconds, decision, texels = polished(args.fit, args.solve_sequence or args.sequence, args.steps,
+                                                 args.move_shape, light_size=args.light_size,
+                                                 texture_size=args.texture_size,
+                                                 solve_resolution=args.solve_resolution)
     shutil.copytree(args.fit, args.out, dirs_exist_ok=True)
     albedo = avatar.albedo.detach().clamp(0, 1).permute(1, 2, 0).cpu().numpy()
     write_png(args.out / av.ALBEDO_FILE, np.round(albedo * 255).astype(np.uint8))
     result = evaluate_fidelity(args.out, args.sequence)
     texture, poses = result["texture"], result["new_poses"]
     print(json.dumps({"fit": str(args.fit), "steps": args.steps, "move_shape": args.move_shape,
-                      "seconds": round(seconds, 1), "light_size": decision,
+                      "seconds": round(seconds, 1), "light_size": decision, "texture_size": albedo.shape[0],
+                      **texels, f"sharpness_at_{COMPARED_SIZE}": round(sharpness_at(albedo, args.sequence), 3),
                       "new_poses_overlap": round(poses["psnr_overlap_mean"], 2),
                       "true_shape_wearing_the_albedo": round(poses["fitted_albedo_alone"]["psnr_overlap_mean"], 2),
                       "albedo_psnr_scaled": round(texture["psnr_scaled"], 2), "albedo_mae_scaled": round(texture["mae_scaled"], 4),

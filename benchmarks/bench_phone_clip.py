@@ -1,7 +1,7 @@
 """Benchmark: the phone-like synthetic clip of issue 30's acceptance, through the artist's path.
 
     .venv/bin/python benchmarks/bench_phone_clip.py OUT [--frames 30] [--identity 3] [--preset fast]
-        [--masks exact,video] [--window hand|mask] [--crop auto|frame|clip] [--landmark-offsets] [--threads 2]
+        [--masks exact,video] [--window hand|mask] [--crop auto|frame|clip] [--size 1024] [--landmark-offsets] [--threads 2]
         [--pictures DIR] [--seed 0] [--fit-options JSON]
 
 1. synth/render.py: the hand as a phone sees it: 1080 x 1920 portrait frames, a 26 mm-equivalent
@@ -10,7 +10,7 @@
    (a window's soft key and a room's coloured environment), the `flip` motion;
 2. synth/imported.py: `harp import-video` on those frames, with the clip's exact masks
    ("exact") and with masks made from the frames alone ("video"), the ground truth carried
-   through the crop (`--window`, `--crop`: the import's; other than the defaults, their own
+   through the crop (`--window`, `--crop`, `--size`: the import's; other than the defaults, their own
    folders);
 3. `harp init` (MediaPipe; `--landmark-offsets`, its own folders), `harp fit --hold-out-every 5` with the preset;
 4. `harp evaluate --novel-poses`: held-out frames (both protocols), the surface against the
@@ -40,6 +40,7 @@ from pipeline.fit import fit  # noqa: E402
 from pipeline.fit.outputs import GRID_FILE  # noqa: E402
 from pipeline.fit.settings import PRESETS  # noqa: E402
 from pipeline.formats import sequence_folder as seq  # noqa: E402
+from pipeline.sequence_import import DEFAULT_SIZE  # noqa: E402
 from pipeline.init import initialise_sequence  # noqa: E402
 from synth.imported import import_with_ground_truth  # noqa: E402
 from timing import timed  # noqa: E402
@@ -77,6 +78,8 @@ def main(argv=None):
     parser.add_argument("--masks", default="exact,video", help="comma-separated: exact, video (default both)")
     parser.add_argument("--window", choices=("hand", "mask"), default="hand", help="harp import-video --window")
     parser.add_argument("--crop", choices=("auto", "frame", "clip"), default="auto", help="harp import-video --crop")
+    parser.add_argument("--size", type=int, default=DEFAULT_SIZE,
+                        help=f"harp import-video --size (default {DEFAULT_SIZE}: the hand's 873 px window kept)")
     parser.add_argument("--landmark-offsets", action="store_true", help="harp init --landmark-offsets")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0, help="the fit's seed (its own avatar folders other than 0)")
@@ -94,11 +97,12 @@ def main(argv=None):
     args.out.mkdir(parents=True, exist_ok=True)
     source = args.out / "source"
     figures = {"frames": args.frames, "identity": args.identity, "preset": args.preset, "threads": args.threads,
-               "window": args.window, "crop": args.crop, "landmark_offsets": args.landmark_offsets,
+               "window": args.window, "crop": args.crop, "size": args.size, "landmark_offsets": args.landmark_offsets,
                "seed": args.seed, "fit_options": fit_options}
     variant = (f"_window_{args.window}" if args.window != "hand" else "") + (f"_crop_{args.crop}" if args.crop != "auto"
                                                                              else "") \
-        + ("_landmark_offsets" if args.landmark_offsets else "")
+        + (f"_size{args.size}" if args.size != DEFAULT_SIZE else "") + ("_landmark_offsets" if args.landmark_offsets
+                                                                         else "")
     fit_variant = (f"_seed{args.seed}" if args.seed else "") + "".join(
         f"_{name}_{value}" for name, value in sorted(fit_options.items()))
     if not (source / seq.SEQUENCE_FILE).is_file():
@@ -111,7 +115,7 @@ def main(argv=None):
         if not (sequence / seq.GT_FILE).is_file():
             timed(figures, f"{kind}_import", lambda: import_with_ground_truth(
                 source, sequence, video_alone=kind == "video", log=lambda line: print(f"  {line}", flush=True),
-                window=args.window, crop=args.crop))
+                window=args.window, crop=args.crop, size=args.size))
         if not (sequence / "init.npz").is_file():
             timed(figures, f"{kind}_init", lambda: initialise_sequence(sequence, "mediapipe", log=lambda *a: None,
                                                                               landmark_offsets=args.landmark_offsets))

@@ -248,9 +248,11 @@ def build_parser():
                           "sharp detail such as tattoos, docs/fidelity.md)")
     fit.add_argument("--solve-resolution", type=int, default=None, metavar="PX",
                      help="the long side, pixels, of the frames the final albedo is solved from a second time, the "
-                          "light held: finer than the working images, the texture takes what the footage shows of "
-                          "the skin (never above the clip's own size; 0: the working frames alone; default: the "
-                          "preset's, 448 for fast and full: on a phone-like clip +0.4 dB held out, docs/fidelity.md)")
+                          "light held, into a texture grown to what they hold (a texel two pixels across): finer "
+                          "than the working images, the texture takes what the footage shows of the skin (never "
+                          "above the clip's own size; 0: the working frames alone; default: the preset's, the clip's "
+                          "own up to 1024 px for fast and full: on a phone-like clip +0.4 dB held out at 448 px, and "
+                          "at its own 873 px a 512 texture, new poses +0.2 dB more, docs/fidelity.md)")
     fit.add_argument("--exposure", choices=("auto", "on", "off"), default=None,
                      help="per-frame exposure and white-balance gains: auto (default) switches them on when the "
                           "footage's background brightness changes over the clip (a phone's automatic exposure)")
@@ -438,14 +440,17 @@ def build_parser():
     info.add_argument("--model", default=None, help="folder of model files (default: shipped)")
     info.set_defaults(run=_model_info)
 
+    from .sequence_import import DEFAULT_SIZE as DEFAULT_IMPORT_SIZE   # numpy and OpenCV: a quarter of a second
+
     video = commands.add_parser("import-video", help="a sequence folder from a video (or images) and its masks")
     video.add_argument("video", help="video file or folder of images")
     video.add_argument("--masks", default=None,
                        help="mask video or folder of mask images (white = hand); default: made from the footage "
                             "(MediaPipe landmarks + GrabCut); given masks always win")
     video.add_argument("--out", required=True, help="sequence folder to write")
-    video.add_argument("--size", type=int, default=448,
-                       help="square output size in pixels (default 448; a smaller crop keeps its own size)")
+    video.add_argument("--size", type=int, default=DEFAULT_IMPORT_SIZE,
+                       help=f"the largest square output size in pixels (default {DEFAULT_IMPORT_SIZE}; a smaller crop "
+                            "keeps its own size, the hand's pixels in the footage)")
     camera = video.add_mutually_exclusive_group()
     camera.add_argument("--K", default=None, metavar="FX,FY,CX,CY", help="intrinsics of the video, pixels")
     camera.add_argument("--fov", type=float, default=None, metavar="DEG",

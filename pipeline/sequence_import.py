@@ -69,6 +69,11 @@ MIN_MASK_PIXELS = seq.MIN_MASK_PIXELS  # fewer hand pixels than this: an empty m
 MIN_FRAMES = 2                  # the fit needs more than one view
 MASK_THRESHOLD = 128
 AUTO_MASK_SIZE = 640            # long side of the frames masks are made at (then scaled back)
+# the window's side is kept up to this many pixels (never enlarged): the hand at its own pixel size in the
+# source, which the finer albedo solve reads (FitSettings.solve_resolution, grow_texture); a 1080p phone clip
+# shows the hand at 400-900 px. At 448 (until then) the phone-like clip's 873 px window lost the detail that a
+# 512 texture solved from its own frames keeps (docs/fidelity.md, "Texture detail at the footage's resolution")
+DEFAULT_SIZE = 1024
 CROPS = ("auto", "frame", "clip")
 WINDOWS = ("hand", "mask")
 SIDE_VOTES = 10                 # frames MediaPipe's handedness is asked about for --side auto
@@ -445,7 +450,7 @@ def _side_of(small, side, log):
     return side
 
 
-def import_video(video, masks, out, size=448, K=None, fov_deg=None, side="auto", fps=None, margin=0.15,
+def import_video(video, masks, out, size=DEFAULT_SIZE, K=None, fov_deg=None, side="auto", fps=None, margin=0.15,
                  max_frames=None, overwrite=False, log=print, warn=None, crop="auto", window="hand"):
     """Write the sequence folder `out` from `video` and `masks` (files or image folders; None:
     made from the frames); returns its SequenceInfo. See the module docstring."""

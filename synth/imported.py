@@ -11,7 +11,7 @@ synth metadata (settings, identity, camera) comes along, so that the Cycles trut
 (pipeline/evaluate/cycles_truth.py) renders the same person; the import's own metadata stays
 beside it (`metadata.import`).
 
-    python synth/imported.py SOURCE OUT [--video-alone] [--size 448]
+    python synth/imported.py SOURCE OUT [--video-alone] [--size 1024]
 
 With `--video-alone` the import makes its own masks from the frames (MediaPipe + GrabCut),
 as it does for an artist's video; by default it takes the clip's exact masks.
@@ -30,12 +30,12 @@ if __package__ in (None, ""):
 
 from pipeline.formats import sequence_folder as seq  # noqa: E402
 from pipeline.formats.camera import project  # noqa: E402
-from pipeline.sequence_import import import_video  # noqa: E402
+from pipeline.sequence_import import DEFAULT_SIZE, import_video  # noqa: E402
 
 SYNTH_KEYS = ("generator", "settings", "identity", "camera", "blender")   # synth/clip.py's metadata
 
 
-def import_with_ground_truth(source, out, video_alone=False, size=448, log=print, **import_options):
+def import_with_ground_truth(source, out, video_alone=False, size=DEFAULT_SIZE, log=print, **import_options):
     """Import the synthetic clip `source` (a sequence folder written by synth/render.py) into
     `out` as `harp import-video` imports footage, with its exact masks or (`video_alone`) masks
     made from the frames; write `out`'s gt.npz and gt_albedo.png. Returns out's SequenceInfo."""
@@ -70,7 +70,8 @@ def main(argv=None):
     parser.add_argument("source", type=Path, help="a sequence folder written by synth/render.py")
     parser.add_argument("out", type=Path, help="the imported sequence folder (replaced)")
     parser.add_argument("--video-alone", action="store_true", help="masks made from the frames, not the clip's")
-    parser.add_argument("--size", type=int, default=448, help="the imported frames' side (default 448)")
+    parser.add_argument("--size", type=int, default=DEFAULT_SIZE,
+                        help=f"the imported frames' largest side (default {DEFAULT_SIZE}; a smaller window keeps its own)")
     args = parser.parse_args(argv)
     import_with_ground_truth(args.source, args.out, video_alone=args.video_alone, size=args.size)
 

@@ -290,10 +290,24 @@ def test_the_albedo_solves_finer_frames_are_the_clips_own_at_most():
     assert settings_for("fast", 30, image_size=200, solve_resolution=448).solve_resolution is None
     assert settings_for("fast", 30, solve_resolution=448).solve_resolution == 448     # size unknown: as asked
     assert settings_for("preview", 30, image_size=256, solve_resolution=200).solve_resolution == 200  # 160 px work
-    # the presets: fast and full read the import's 448 px frames a second time, preview and paper do not
+    # the presets: fast and full read the clip's own frames a second time (up to the import's 1024 px), preview and
+    # paper do not
     assert settings_for("fast", 30, image_size=448).solve_resolution == 448
-    assert settings_for("full", 30, image_size=1080).solve_resolution == 448
+    assert settings_for("fast", 30, image_size=873).solve_resolution == 873
+    assert settings_for("full", 30, image_size=1080).solve_resolution == 1024
     assert settings_for("fast", 30, image_size=256).solve_resolution is None
     assert settings_for("fast", 30, image_size=448, solve_resolution=0).solve_resolution == 0    # the user's "off"
     assert settings_for("preview", 30, image_size=448).solve_resolution is None
     assert settings_for("paper", 30, image_size=448).solve_resolution is None
+
+
+def test_the_finer_solve_grows_the_texture_unless_a_size_is_given():
+    """grow_texture: on in the presets, off where the user gave a texture size (kept as given), and
+    off in checkpoints saved before it (their fits wrote the stages' texture)."""
+    from pipeline.fit.settings import FitSettings, settings_for
+
+    assert settings_for("fast", 30, image_size=873).grow_texture
+    assert not settings_for("fast", 30, image_size=873, texture_size=256).grow_texture
+    assert settings_for("fast", 30, image_size=873, texture_size=256, grow_texture=True).grow_texture
+    old = {k: v for k, v in vars(settings_for("fast", 30)).items() if k != "grow_texture"}
+    assert not FitSettings.from_dict(old).grow_texture

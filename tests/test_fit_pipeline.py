@@ -93,6 +93,25 @@ def test_a_finer_solve_reads_the_clips_own_frames_with_the_light_held(tiny_clip,
     assert not calls and np.array_equal(cv2.imread(str(tmp_path / "finer" / av.ALBEDO_FILE)), albedo)
 
 
+def test_the_finer_solve_writes_the_texture_it_grew_and_a_resumed_fit_keeps_it(tmp_path):
+    """Stages at 64 px with a 64 texture, a 256 px clip: the finer solve grows the texture to 128
+    (texel_footprint.py), albedo.png and normal.png are written at that size, the report says so, and
+    the finished fit resumed (its checkpoint's textures larger than the stages') writes the same files."""
+    from synth_clips import exact_clip
+
+    clip = exact_clip(tmp_path / "clip", 4, size=256)
+    options = dict(progress="none", max_steps=2, texture_size=64, grow_texture=True, batch_size=2, resolution=64,
+                   solve_resolution=256, shadows="off")
+    report = fitting.fit(clip, tmp_path / "fit", **options)
+    texture = report["albedo_solve"][fitting.FINER_SOLVE]["texture"]
+    assert texture["grown_from"] == 64 and texture["texture_size"] == 128 and texture["pixel_footprint"] > 0
+    written = {name: cv2.imread(str(tmp_path / "fit" / name)) for name in (av.ALBEDO_FILE, av.NORMAL_FILE)}
+    assert all(image.shape == (128, 128, 3) for image in written.values())
+    fitting.fit(clip, tmp_path / "fit", resume=True, **options)
+    for name, image in written.items():
+        assert np.array_equal(cv2.imread(str(tmp_path / "fit" / name)), image), name
+
+
 def test_the_texture_is_no_finer_than_the_clips_pixels(tiny_clip):
     """A preset's texture shrinks to what the clip's working images can fill (the 96 px clip:
     128 texels, not `paper`'s 512); a texture size the user gives is kept."""

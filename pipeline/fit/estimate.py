@@ -32,6 +32,7 @@ from .checkpoint import FitState
 from .light_probe import PROBE_FRAMES
 from .schedule import SHADOWS_DECIDED_IN, Schedule, StageKind, StepKind, step_kind
 from .stage_run import StageRun, stage_has_work
+from .texel_footprint import likely_texture_size
 
 WARM_UP_STEPS = 1            # untimed steps of each kind first (a new optimiser's state, allocations)
 TIMED_STEPS = 2              # timed steps per kind of step
@@ -122,15 +123,19 @@ def after_stages_seconds(seconds, settings, frame_count) -> float:
     per_frame = seconds[StepKind(StageKind.JOINT)] / settings.batch_size
     frames = per_frame * frame_count   # one joint pass over them
     texels = (settings.texture_size / 256) ** 2
-    total = OUTPUT_FRAME_PASSES * frames + FILL_SECONDS * texels
+    finer = settings.solve_albedo and settings.solve_resolution and settings.solve_resolution > settings.resolution
+    written = likely_texture_size(settings.texture_size, settings.solve_resolution) \
+        if finer and settings.grow_texture else settings.texture_size
+    written_texels = (written / 256) ** 2     # the texture the finer solve and the fill work on
+    total = OUTPUT_FRAME_PASSES * frames + FILL_SECONDS * written_texels
     if settings.solve_albedo:
         sized = settings.light_size == "auto" and settings.shadows != "off"
         area = AREA_SOLVE_FACTOR if sized else 1.0
         total += area * SOLVE_FRAME_PASSES * frames + (LIGHT_SOLVE_SECONDS * texels if settings.environment != "off"
                                                        else 0.0)
-        if settings.solve_resolution and settings.solve_resolution > settings.resolution:
+        if finer:
             total += (area * FINER_FRAME_PASSES * (settings.solve_resolution / settings.resolution) ** 2 * frames
-                      + FINER_TEXTURE_SECONDS * texels)
+                      + FINER_TEXTURE_SECONDS * written_texels)
         if sized:
             total += LIGHT_SIZE_PROBE_PASSES * per_frame * min(frame_count, PROBE_FRAMES)
     return total

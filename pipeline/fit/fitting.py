@@ -37,6 +37,7 @@ from .schedule import SHADOWS_DECIDED_IN, StageKind, step_kind
 from .settings import PRESETS, RENAMED_PRESETS, settings_for
 from .specular_share import specular_share
 from .stage_run import StageRun
+from .texel_footprint import grow_texture
 from .texture_fill import fill_avatar_albedo
 from .validation import Validator, restore_best
 
@@ -68,7 +69,7 @@ ENVIRONMENT_MIN_FRAMES = 8
 SPECULAR_THRESHOLD = 0.03
 KNOWN_APPEARANCE = SHAPE + APPEARANCE   # what a fit with known appearance takes from another fit, frozen
 # settings of what runs after the stages: a resumed fit may change them (they do not touch the checkpoint)
-AFTER_THE_STAGES = ("solve_albedo", "solve_resolution", "light_size")
+AFTER_THE_STAGES = ("solve_albedo", "solve_resolution", "light_size", "grow_texture")
 # the key of FitState.albedo_solve that holds the figures of its finer pass (albedo alone, at solve_resolution)
 FINER_SOLVE = "finer"
 # a budgeted fit resumes with a new budget, or without one on the schedule it had (FitState.schedule)
@@ -261,8 +262,9 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
     """The avatar back at its best validation check (when the last scored below it), the albedo
     solved from the frames (with the environment light, at the working size), the light's `auto`
     decisions, the albedo alone solved again from finer frames where `solve_resolution` asks for
-    them, then the unseen texels filled (each once: a resumed fit skips what has run). Frames the
-    final surface leaves off their silhouettes are left out of the solves (_painting_frames)."""
+    them (into a texture grown to what those frames hold, with `grow_texture`), then the unseen
+    texels filled (each once: a resumed fit skips what has run). Frames the final surface leaves
+    off their silhouettes are left out of the solves (_painting_frames)."""
     if validator is not None and state.albedo_solve is None and state.texture_fill is None:
         best = restore_best(validator, state)
         if best is not None:
@@ -299,10 +301,13 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
             seen = problem.at_resolution(problem.settings.solve_resolution)
         if seen is not problem and FINER_SOLVE not in state.albedo_solve:
             with timed("albedo_solve"):
+                texture = grow_texture(seen) if problem.settings.grow_texture else None
                 finer = solve_avatar_albedo(seen, state.shadows.on, solve_environment=False, frames=painting)
-            state.albedo_solve = {**state.albedo_solve, FINER_SOLVE: finer}
+            state.albedo_solve = {**state.albedo_solve, FINER_SOLVE: {**finer, "texture": texture}}
+            grown = "" if texture is None or texture["grown_from"] is None else \
+                f", into a texture grown from {texture['grown_from']} to {texture['texture_size']} texels"
             reporter.log(f"albedo solved again from the frames at {max(seen.clip.height, seen.clip.width)} px, "
-                         f"the light held: {finer['solved_fraction']:.0%} of the texels "
+                         f"the light held{grown}: {finer['solved_fraction']:.0%} of the texels "
                          f"(mean change {finer['mean_change']:.3f})")
             save()
     if state.texture_fill is None and not problem.known_appearance:
@@ -514,6 +519,7 @@ class _CheckpointSaver:
                      f"--preset {renamed})" if renamed and renamed != settings.preset else "")
             raise FitError(f"{self.path} was written with other settings ({', '.join(changed)}): "
                            f"resume with the options the fit started with{hint}")
+        self.problem.avatar.resize_textures(int(saved.avatar["albedo"].shape[-1]))   # grown after the stages
         self.problem.avatar.load_state_dict(saved.avatar)
         if self.validator is not None:
             self.validator.resume(saved.state, saved.best_avatar)

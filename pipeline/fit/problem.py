@@ -53,7 +53,6 @@ class FitProblem:
     clip: ClipData                      # frames, masks and K at the working resolution
     avatar: Avatar
     surface: SurfaceRegularisers        # the subdivided mesh's Laplacian, normal-consistency and edge-length terms
-    uv_mask: torch.Tensor               # (T, T) texels inside the UV charts
     perceptual: Callable | None         # the perceptual term, None when its weight is 0
     perceptual_name: str
     anchor_keypoints: torch.Tensor      # (F, 21, 3) keypoints at the start: the anchor term's targets
@@ -65,6 +64,18 @@ class FitProblem:
     exposure_measured: tuple | None = None   # measured_exposure(clip) when the gains are on: their prior
     term_data: dict = dataclasses.field(default_factory=dict)   # {term name: its prepared data} (energy_terms.py)
     workers: object = None              # batch_workers.BatchWorkers: other processes taking parts of each batch
+    uv_masks: dict = dataclasses.field(default_factory=dict)    # {texture size: its uv_mask}, made once each
+
+    @property
+    def uv_mask(self) -> torch.Tensor:
+        """(T, T) the texels inside the UV charts at the avatar's texture size (which the finer
+        albedo solve may grow: texel_footprint.py), made once per size."""
+        size = int(self.avatar.albedo.shape[-1])
+        if size not in self.uv_masks:
+            data = self.avatar.model.data
+            self.uv_masks[size] = torch.as_tensor(atlas_mask(data.uvs, data.faces_uv, size), device=self.device,
+                                                  dtype=self.clip.images.dtype)
+        return self.uv_masks[size]
 
     @property
     def exposure_on(self) -> bool:
@@ -189,15 +200,12 @@ def build_problem(sequence, settings: FitSettings, frames, device=None, shared=N
     topology = avatar.mesh.edges()
     surface = SurfaceRegularisers(avatar.mesh.faces, topology.edges, topology.faces[topology.faces[:, 1] >= 0],
                                   reference_vertices.shape[1], dtype=reference_vertices.dtype, device=device)
-    data = avatar.model.data
-    uv_mask = torch.as_tensor(atlas_mask(data.uvs, data.faces_uv, settings.texture_size),
-                              device=device, dtype=clip.images.dtype)
     if ENERGY_TERMS["perceptual"].weight_in(settings) == 0.0:
         perceptual_name, perceptual = "off (weight 0)", None
     else:
         perceptual_name, perceptual = perceptual_term(settings.perceptual_weights, device)
     problem = FitProblem(sequence=sequence, settings=settings, initial=initial, clip=clip, avatar=avatar,
-                         surface=surface, uv_mask=uv_mask,
+                         surface=surface,
                          perceptual=perceptual, perceptual_name=perceptual_name,
                          anchor_keypoints=keypoints[:, :21].detach(),
                          reference_edge_lengths=surface.edge_lengths(reference_vertices),

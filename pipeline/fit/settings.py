@@ -61,10 +61,17 @@ class FitSettings:
     # the long side, pixels, of the frames the albedo solve reads a second time, the light held
     # (FitProblem.at_resolution, fitting._after_the_stages): the stages fit the shape, poses and light at `resolution`,
     # but the texture can take what finer frames show of the skin (never above the clip's own size). None or 0: the
-    # working frames alone. `fast` and `full`: 448, the import's size; on the phone-like clip held out +0.31-0.39 dB
-    # and new poses +0.25 dB on 3 seeds of 3, the 150-frame sun clip's L1 level; about 44 s on 150 frames
-    # (docs/fidelity.md, "The albedo solved again from the footage's own pixels, the light held")
+    # working frames alone. `fast` and `full`: 1024, the most the import keeps (sequence_import.DEFAULT_SIZE), so the
+    # clip's own size; at 448 on the phone-like clip held out +0.31-0.39 dB and new poses +0.25 dB on 3 seeds of 3,
+    # the 150-frame sun clip's L1 level, about 44 s on 150 frames (docs/fidelity.md, "The albedo solved again from
+    # the footage's own pixels, the light held"); at its own 873 px with grow_texture, the section "Texture detail
+    # at the footage's resolution"
     solve_resolution: int | None = None
+    # the finer solve fills a texture as fine as its frames hold (texel_footprint.fitting_texture_size: a texel
+    # two pixels across at the median pixel), where that is finer than the stages' texture_size: on the phone-like
+    # clip imported at its 873 px (harp import-video now keeps the hand at up to 1024 px) a 512 texture in place of
+    # 256 (docs/fidelity.md, "Texture detail at the footage's resolution"). A texture_size given is kept as given.
+    grow_texture: bool = True
     shadows: str = "auto"          # auto | on | off
     exposure: str = "auto"         # per-frame exposure gains: auto | on | off (problem.py decides auto)
     # the environment light (spherical harmonics beside the point light): auto | on | off; `auto` fits
@@ -199,6 +206,7 @@ class FitSettings:
         values.setdefault("environment", "off")          # saved before the environment light
         values.setdefault("specular", "off")             # saved before the specular lobe
         values.setdefault("light_size", "off")           # saved before the light had a size
+        values.setdefault("grow_texture", False)         # saved before the finer solve grew the texture
         values.setdefault("final_rate_fraction", 1.0)    # saved before the learning rates fell
         values.setdefault("plateau_tolerance", 0.0)      # saved before the rates halved on a plateau
         values.setdefault("colour_model", "display")     # saved before the colour model was a choice: display
@@ -231,7 +239,7 @@ PRESETS = {
     # 100 appearance steps, not 200: the albedo is solved from the frames after the stages, and from the joint stage's
     # end of 3 phone-like and 3 demo fits the second hundred moved held-out PSNR by -0.07 to +0.22 dB and new poses by
     # -0.03 to +0.03 (the seeds' spread 0.2-0.5 dB), for 45-52 s (docs/performance.md, "The appearance stage halved")
-    "fast": dict(resolution=256, texture_size=256, batch_size=6, steps=(200, 300, 100), solve_resolution=448),
+    "fast": dict(resolution=256, texture_size=256, batch_size=6, steps=(200, 300, 100), solve_resolution=1024),
     # fast's fit carried on to convergence: twice its steps after the alignment (as fast was until its appearance
     # stage was halved: 400 appearance steps), the joint and appearance stages' rates falling to a tenth (at constant
     # rates the poses wander once the fit has converged). Against fast, 3 seeds each (docs/performance.md, "`full`:
@@ -240,7 +248,7 @@ PRESETS = {
     # the overlap there (-0.3 on the demo, whose hand keeps MediaPipe's size, 2.5% small); 1.5-1.8x fast's time on
     # 30 frames
     "full": dict(resolution=256, texture_size=256, batch_size=6, steps=(400, 600, 400), final_rate_fraction=0.1,
-                 solve_resolution=448),
+                 solve_resolution=1024),
     # HARP's own schedule, to compare with the paper: 100 / 50 / 50 epochs over every frame, batches of ~18 frames
     # at 448 px; the `full` preset until the one above replaced it (no better than fast on the clips measured)
     "paper": dict(resolution=448, texture_size=512, batch_size=18, steps=(None, None, None), max_frames=100000,
@@ -278,6 +286,8 @@ def settings_for(preset, frame_count, image_size=None, **overrides):
     if image_size is not None and overrides.get("texture_size") is None:
         working = min(values["resolution"], image_size)
         values["texture_size"] = min(values["texture_size"], texture_size_for(working))
+    if overrides.get("texture_size") is not None and overrides.get("grow_texture") is None:
+        values["grow_texture"] = False      # the size asked for is the size written
     if image_size is not None and values.get("solve_resolution"):
         # the frames the albedo solve reads are the clip's own at most; at the working size, no second pass
         finer = min(values["solve_resolution"], image_size)
