@@ -33,13 +33,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from pipeline.evaluate.albedo import albedo_truth  # noqa: E402
-from pipeline.evaluate.fidelity import evaluate_fidelity  # noqa: E402
-from pipeline.evaluate.fidelity import sharpness_ratio  # noqa: E402
+from pipeline.evaluate.albedo import albedo_truth, texture_at  # noqa: E402
+from pipeline.evaluate.fidelity import evaluate_fidelity, sharpness_ratio  # noqa: E402
 from pipeline.evaluate.finished_fit import load_finished_fit  # noqa: E402
 from pipeline.fit.albedo_solve import decided_texels, solve_avatar_albedo  # noqa: E402
 from pipeline.fit.checkpoint import FitState  # noqa: E402
@@ -55,7 +53,6 @@ from pipeline.formats import avatar_folder as av  # noqa: E402
 from pipeline.formats.png_file import write_png  # noqa: E402
 
 SHAPE = ("betas", "displacement")
-TEXTURES = ("albedo", "normal_map")
 COMPARED_SIZE = 256
 
 
@@ -63,19 +60,13 @@ def replay_problem(fit, sequence, texture_size=None, solve_resolution=None):
     """The fit's problem over its frames of `sequence`, every parameter as fitted, its textures
     resampled to `texture_size` and its finer solve at `solve_resolution` where given; its shadows."""
     saved, report = load_finished_fit(fit, "cpu")
-    state = dict(saved.avatar)
-    if texture_size and texture_size != state["albedo"].shape[-1]:
-        for name in TEXTURES:
-            resized = torch.nn.functional.interpolate(state[name][None], size=(texture_size, texture_size),
-                                                      mode="bilinear", align_corners=False)[0]
-            state[name] = resized if name == "albedo" else torch.nn.functional.normalize(resized, dim=0)
     settings = saved.settings
-    if texture_size:
-        settings = dataclasses.replace(settings, texture_size=texture_size)
     if solve_resolution:
         settings = dataclasses.replace(settings, solve_resolution=solve_resolution)
-    problem = build_problem(Path(sequence), settings, report["frames"], "cpu", shared=state)
-    problem.avatar.load_state_dict(state)
+    problem = build_problem(Path(sequence), settings, report["frames"], "cpu", shared=dict(saved.avatar))
+    problem.avatar.load_state_dict(saved.avatar)
+    if texture_size:
+        problem.avatar.resize_textures(texture_size)
     return problem, bool(saved.state.shadows.on)
 
 
@@ -117,10 +108,8 @@ def polished(fit, sequence, steps, move_shape=False, seed=0, light_size=False, t
 
 def sharpness_at(albedo, sequence, size=COMPARED_SIZE):
     """The sharpness ratio of an (H, W, 3) albedo shrunk (or grown) to `size` against the truth at `size`."""
-    image = cv2.resize(albedo, (size, size), interpolation=cv2.INTER_AREA if albedo.shape[0] > size
-                       else cv2.INTER_LINEAR)
     truth = albedo_truth(sequence, size)
-    return sharpness_ratio(image, truth.image, truth.visible)
+    return sharpness_ratio(texture_at(albedo, size), truth.image, truth.visible)
 
 
 def main():

@@ -163,6 +163,22 @@ def test_mediapipe_on_a_rendered_right_hand(right_clip):
     assert 1000 * world_error[torch.as_tensor(keypoints.detected)].mean() < 25
 
 
+def test_mediapipe_reads_a_large_sequence_shrunk_and_answers_in_its_pixels(right_clip):
+    """harp init detects a sequence's frames shrunk to SEQUENCE_DETECTION_SIZE where they are larger
+    (the import keeps windows up to 1024 px): the 256 px clip detected at 128 px gives keypoints in
+    its own 256 px frame, near the true projections and near its detection at full size."""
+    info = seq.read_sequence_info(right_clip)
+    gt = seq.read_ground_truth(right_clip / seq.GT_FILE)
+    full = mediapipe_hands.detect_sequence_keypoints(right_clip, info)       # 256 px: under the size, as it is
+    half = mediapipe_hands.detect_sequence_keypoints(right_clip, info, size=128)
+    both = full.detected & half.detected
+    assert both.mean() >= 0.5
+    error = np.linalg.norm(half.points - gt.keypoints2d, axis=-1).mean(-1)[half.detected]
+    assert np.median(error) < 0.06 * info.width, error
+    apart = np.linalg.norm(half.points - full.points, axis=-1).mean(-1)[both]
+    assert np.median(apart) < 0.03 * info.width, apart      # unscaled, they would be a hand's size apart
+
+
 def test_mediapipe_calls_a_left_hand_right(left_clip):
     side, votes = mediapipe_hands.guess_hand_side(seq.read_rgb(p) for p in sorted((left_clip / "rgb").glob("*.png")))
     assert side == "left" and votes["left"] > votes["right"], votes

@@ -14,6 +14,7 @@ image a right hand is labelled "Left" (measured on synthetic clips: a right hand
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 
 import numpy as np
@@ -24,6 +25,12 @@ from ..quiet_stderr import native_stderr_silenced
 MEDIAPIPE_LABEL = {"right": "Left", "left": "Right"}   # MediaPipe's label for an unmirrored image
 PAD_FRACTION = 0.5          # padding around each frame before detection, fraction of its size
 MIN_DETECTION_CONFIDENCE = 0.3
+# a sequence's frames are shrunk to this long side before `harp init` detects them: the size the import wrote
+# until it kept the hand's window at up to 1024 px, at which the landmark offsets were calibrated and the
+# initialisation measured (docs/initialisation.md); MediaPipe's landmark model reads the hand at 224 px whatever
+# the frame's size, but its result moved with it (the phone-like clip's 873 px frames: a hand 1.6% smaller than
+# from the same frames at 448, and one frame's detection elsewhere)
+SEQUENCE_DETECTION_SIZE = 448
 
 
 @contextlib.contextmanager
@@ -121,13 +128,28 @@ def detect_keypoints(frames, side, detector=None, on_frame=None):
                        source="mediapipe")
 
 
-def detect_sequence_keypoints(folder, info=None, detector=None, on_frame=None):
-    """Keypoints2D of the frames of a sequence folder (image frames)."""
+def detect_sequence_keypoints(folder, info=None, detector=None, on_frame=None, size=SEQUENCE_DETECTION_SIZE):
+    """Keypoints2D of the frames of a sequence folder (image frames), detected on the frames shrunk
+    to `size` pixels on their long side where they are larger, in the frames' own pixels."""
+    import cv2
+
     from ..formats import sequence_folder as seq
 
     info = info or seq.read_sequence_info(folder)
-    frames = (seq.read_rgb(seq.frame_path(folder, info, index)) for index in range(info.frame_count))
-    return detect_keypoints(frames, info.hand_side, detector, on_frame)
+    scale = min(1.0, size / max(info.width, info.height))
+    shrunk = (max(1, int(round(info.width * scale))), max(1, int(round(info.height * scale))))
+
+    def frames():
+        for index in range(info.frame_count):
+            rgb = seq.read_rgb(seq.frame_path(folder, info, index))
+            yield rgb if scale == 1.0 else cv2.resize(rgb, shrunk, interpolation=cv2.INTER_AREA)
+
+    keypoints = detect_keypoints(frames(), info.hand_side, detector, on_frame)
+    if scale == 1.0:
+        return keypoints
+    to_frame = np.array([info.width / shrunk[0], info.height / shrunk[1]])   # corner origin: a plain scale
+    return dataclasses.replace(keypoints, points=keypoints.points * to_frame,
+                               other_hand=None if keypoints.other_hand is None else keypoints.other_hand * to_frame)
 
 
 def guess_hand_side(frames, detector=None):

@@ -101,6 +101,14 @@ class AlbedoTruth:
     ground_truth_size: list       # gt_albedo.png's own [width, height]
 
 
+def texture_at(image, size):
+    """An (H, H, C) texture at `size` x `size` texels: area-averaged where it shrinks, bilinear where
+    it grows (the truth is compared at the fitted albedo's size, and albedos of two sizes at one)."""
+    if image.shape[:2] == (size, size):
+        return image
+    return cv2.resize(image, (size, size), interpolation=cv2.INTER_AREA if image.shape[0] > size else cv2.INTER_LINEAR)
+
+
 def albedo_truth(sequence, size, device=None, fit_folder=None) -> AlbedoTruth:
     """gt_albedo.png at `size` texels and the visible UV area: texels holding a surface point
     seen at a pixel centre of some frame of the clip, from the ground-truth meshes (gt.npz
@@ -111,10 +119,7 @@ def albedo_truth(sequence, size, device=None, fit_folder=None) -> AlbedoTruth:
     info = seq.read_sequence_info(sequence)
     if not info.albedo or not (sequence / info.albedo).is_file():
         raise EvaluationError(f"the sequence {sequence} has no ground-truth albedo")
-    truth = seq.read_rgb(sequence / info.albedo).astype(np.float64) / 255
-    if truth.shape[:2] != (size, size):
-        shrink = truth.shape[0] > size
-        truth = cv2.resize(truth, (size, size), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+    truth = texture_at(seq.read_rgb(sequence / info.albedo).astype(np.float64) / 255, size)
     vertices, K, data, source = _visibility_meshes(fit_folder, sequence, info, device)
     mesh = RenderMesh.from_model_data(data, device=device)
     visible = visible_texels(vertices, mesh, K, info.height, info.width, size)
