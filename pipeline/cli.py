@@ -252,7 +252,8 @@ def build_parser():
                           "than the working images, the texture takes what the footage shows of the skin (never "
                           "above the clip's own size; 0: the working frames alone; default: the preset's, the clip's "
                           "own up to 1024 px for fast and full: on a phone-like clip +0.4 dB held out at 448 px, and "
-                          "at its own 873 px a 512 texture, new poses +0.2 dB more, docs/fidelity.md)")
+                          "at its own 873 px a 512 texture, held out +0.3 to +0.5 dB more and the albedo sharper, "
+                          "docs/fidelity.md)")
     fit.add_argument("--exposure", choices=("auto", "on", "off"), default=None,
                      help="per-frame exposure and white-balance gains: auto (default) switches them on when the "
                           "footage's background brightness changes over the clip (a phone's automatic exposure)")
