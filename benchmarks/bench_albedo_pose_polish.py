@@ -1,7 +1,7 @@
 """Benchmark: the poses polished against the solved albedo, on a finished fit.
 
     .venv/bin/python benchmarks/bench_albedo_pose_polish.py FIT SEQ OUT [--steps 150] [--move-shape]
-        [--light-size] [--texture-size 512] [--solve-sequence SEQ_LARGER --solve-resolution 896]
+        [--light-size] [--texture-size 512] [--solve-sequence SEQ_LARGER --solve-resolution 896] [--checkpoint]
 
 The fit's work after the stages done again on its final state (fitting._after_the_stages: the
 albedo and room light solved from the working frames, then the albedo alone from the frames at
@@ -18,7 +18,8 @@ fill a finer (or coarser) texture. `--solve-sequence`: the same clip imported la
 finer solve's at `--solve-resolution`, default the fit's). The avatar (the fit folder with the new
 albedo.png) goes to OUT and is scored against the synthetic SEQ's true hand (evaluate/fidelity.py),
 its sharpness also at 256 texels (each albedo shrunk to 256 against the truth at 256: the figure
-that compares texture sizes); one JSON line. The figures of docs/fidelity.md
+that compares texture sizes); one JSON line. `--checkpoint` also writes the replayed avatar into
+OUT's checkpoint.pt, which `harp evaluate OUT SEQ` reads (the held-out frames scored on it). The figures of docs/fidelity.md
 ("The poses polished against the solved albedo") come from this script.
 """
 from __future__ import annotations
@@ -40,7 +41,7 @@ from pipeline.evaluate.albedo import albedo_truth, texture_at  # noqa: E402
 from pipeline.evaluate.fidelity import evaluate_fidelity, sharpness_ratio  # noqa: E402
 from pipeline.evaluate.finished_fit import load_finished_fit  # noqa: E402
 from pipeline.fit.albedo_solve import decided_texels, solve_avatar_albedo  # noqa: E402
-from pipeline.fit.checkpoint import FitState  # noqa: E402
+from pipeline.fit.checkpoint import CHECKPOINT_FILE, FitState, save_checkpoint  # noqa: E402
 from pipeline.fit.light_probe import probe_frames  # noqa: E402
 from pipeline.fit.light_size import decide_light_size  # noqa: E402
 from pipeline.fit.lost_frames import frames_kept, frames_off_their_silhouettes  # noqa: E402
@@ -125,6 +126,9 @@ def main():
     parser.add_argument("--solve-sequence", type=Path,
                         help="the same clip imported larger: the frames the solves read (SEQ scores the avatar)")
     parser.add_argument("--solve-resolution", type=int, help="the finer solve's frames (long side, px)")
+    parser.add_argument("--checkpoint", action="store_true",
+                        help="write OUT's checkpoint.pt with the replayed avatar, so that `harp evaluate OUT SEQ` "
+                             "scores its held-out frames")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     avatar, seconds, decision, texels = polished(args.fit, args.solve_sequence or args.sequence, args.steps,
@@ -134,6 +138,10 @@ def main():
     shutil.copytree(args.fit, args.out, dirs_exist_ok=True)
     albedo = avatar.albedo.detach().clamp(0, 1).permute(1, 2, 0).cpu().numpy()
     write_png(args.out / av.ALBEDO_FILE, np.round(albedo * 255).astype(np.uint8))
+    if args.checkpoint:
+        saved, _ = load_finished_fit(args.fit, "cpu")
+        state = {name: value.detach().clone() for name, value in avatar.state_dict().items()}
+        save_checkpoint(args.out / CHECKPOINT_FILE, dataclasses.replace(saved, avatar=state))
     result = evaluate_fidelity(args.out, args.sequence)
     texture, poses = result["texture"], result["new_poses"]
     print(json.dumps({"fit": str(args.fit), "steps": args.steps, "move_shape": args.move_shape,
@@ -142,7 +150,7 @@ def main():
                       "new_poses_overlap": round(poses["psnr_overlap_mean"], 2),
                       "true_shape_wearing_the_albedo": round(poses["fitted_albedo_alone"]["psnr_overlap_mean"], 2),
                       "albedo_psnr_scaled": round(texture["psnr_scaled"], 2), "albedo_mae_scaled": round(texture["mae_scaled"], 4),
-                      "contrast": round(texture["tones"]["contrast"], 3), "sharpness": round(texture["sharpness_ratio"], 3)}))
+                      "contrast": round(texture["tones"]["contrast"], 3) if texture.get("tones") else None, "sharpness": round(texture["sharpness_ratio"], 3)}))
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ for an albedo of 1 (light, ambient ratio, shadows, normal map, exposure gain), b
 renderer's own texture lookup (render/texture.py) at the pixel's UV: four texels and their
 weights. The normal equations couple each texel with its eight neighbours only, so they are
 gathered as a 3 x 3 stencil per texel and solved by conjugate gradients, with a weak pull
-(SMOOTHNESS) between neighbouring texels. Texels with less than MIN_COVERAGE of bilinear weight
+(neighbour_pull) between neighbouring texels. Texels with less than MIN_COVERAGE of bilinear weight
 from the frames keep the value the fit gave them.
 
 The frames also show what the renderer does not model (under a hard sun: shadow edges in other
@@ -44,6 +44,7 @@ docs/fidelity.md has the figures.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import torch
 
@@ -53,14 +54,13 @@ from ..render.rasterize import pixel_rays
 from ..render.renderer import lobe_colour, render
 from ..render.shading import environment_basis_values, sphere_radiance_basis
 from ..render.texture import bilinear_texels
+from .texel_footprint import FRAMES as FOOTPRINT_FRAMES, pixel_footprint
 
 MIN_COVERAGE = 1.0      # bilinear weight (about one pixel's worth) a texel needs to be solved
 MIN_SHADING = 0.05      # pixels darker than this (shading of an albedo of 1) carry no colour
-# neighbour pull, against the mean data weight of a solved texel. At 1e-2 it blurred what the frames hold: frames
-# drawn by our renderer from the phone-like fit wearing the true albedo gave that albedo back at 0.61 of its
-# sharpness (0.81 at 1e-3, nearer the truth too); on that clip's own frames 1e-3 is as near the truth and
-# sharper, and new poses gain a little on 3 seeds (docs/fidelity.md, "The neighbour pull loosened")
-SMOOTHNESS = 1e-3
+# neighbour pull, against the mean data weight of a solved texel, where a texel is a pixel across or less; where the
+# frames the solve reads put more pixels across a texel it falls with the texel's area in pixels (neighbour_pull)
+PULL_AT_A_PIXEL = 1e-2
 ANCHOR = 1e-4           # the first solve's pull towards the current albedo, likewise
 WELL_SEEN = 8.0         # coverage of the texels that measure how far off the current albedo is
 PRIOR_COUNT = 4.0       # a texel's noise variance: the clip's, worth this many pixels, and its own
@@ -168,14 +168,15 @@ def _solved_in_shading_space(problem, shadows, batch_size, current, solve_enviro
     if not len(seen.colour):                       # no frame shows a usable pixel of the hand
         return current.clone(), torch.zeros(current.shape[1:], dtype=torch.bool, device=current.device), environment
     uniform = seen.pixel_weights()
+    pull = neighbour_pull(problem, size, frames)
     first = _NormalEquations(size, seen, uniform)
-    albedo, solved = first.solve(current, ANCHOR * first.data_weight())
+    albedo, solved = first.solve(current, ANCHOR * first.data_weight(), pull)
     if light_solved:
         for _ in range(ENVIRONMENT_ROUNDS):
             environment = _solved_environment(seen, albedo, uniform, ambient)
             seen = seen.under_environment(environment)
             first = _NormalEquations(size, seen, uniform)
-            albedo, solved = first.solve(current, ANCHOR * first.data_weight(), start=albedo)
+            albedo, solved = first.solve(current, ANCHOR * first.data_weight(), pull, start=albedo)
     prior = None
     for _ in range(REWEIGHTINGS):
         weights, clip_variance = _consistency_weights(seen, albedo, size)
@@ -184,8 +185,36 @@ def _solved_in_shading_space(problem, shadows, batch_size, current, solve_enviro
             environment = _solved_environment(seen, albedo, weights, ambient)
             seen = seen.under_environment(environment)
         prior = _prior_weight(seen, first.coverage, albedo, current, clip_variance) if prior is None else prior
-        albedo, solved = _NormalEquations(size, seen, weights).solve(current, prior, start=albedo)
+        albedo, solved = _NormalEquations(size, seen, weights).solve(current, prior, pull, start=albedo)
     return albedo, solved, environment
+
+
+def neighbour_pull(problem, size, frames=None) -> float:
+    """The pull between neighbouring texels of a `size` texture solved from `problem`'s frames
+    (`frames`, indices; default all), against the mean data weight of a solved texel:
+    PULL_AT_A_PIXEL where a texel is a pixel across or less at the median pixel the solve reads
+    (texel_footprint.pixel_footprint), and that over the texel's area in pixels where it is more.
+    A texel that more pixels see is measured with less noise, and a fixed pull then blurs what the
+    frames hold: the phone-like clip's finer solve (texels 3.1 pixels across) gave frames that its
+    fitted avatar wearing the true albedo explains exactly back at 0.61 of that albedo's sharpness
+    under a pull of 1e-2, at 0.81 and nearer the truth under 1e-3 (what this rule gives it), while on the
+    demo clip (texels 1.9 pixels across) 1e-3 took in noise: the albedo 0.3-0.5 dB further from the
+    truth on 3 seeds (docs/fidelity.md, "The neighbour pull loosened")."""
+    footprint = pixel_footprint(problem, _measured_frames(frames))
+    if not math.isfinite(footprint) or footprint <= 0:
+        return PULL_AT_A_PIXEL
+    texel_pixels = 1.0 / (size * math.sqrt(footprint))
+    return PULL_AT_A_PIXEL / max(1.0, texel_pixels) ** 2
+
+
+def _measured_frames(frames):
+    """Up to texel_footprint.FRAMES of `frames` (default: all the fitted frames), spread evenly."""
+    if frames is None:
+        return None
+    frames = torch.as_tensor(frames, dtype=torch.long)
+    if len(frames) <= FOOTPRINT_FRAMES:
+        return frames
+    return frames[torch.linspace(0, len(frames) - 1, FOOTPRINT_FRAMES).round().long().unique()]
 
 
 def _solved_environment(seen, albedo, pixel_weight, ambient):
@@ -436,16 +465,16 @@ class _NormalEquations:
         solved = self.coverage.view(self.size, self.size) >= MIN_COVERAGE
         return float(self.diagonal().mean(0)[solved].mean()) if solved.any() else 0.0
 
-    def solve(self, target, anchor, start=None):
+    def solve(self, target, anchor, pull, start=None):
         """(albedo (3, T, T), solved (T, T) bool): conjugate gradients from `start` (default
         `target`: a solve of nearly the same equations starts where the last one ended), with a pull
-        `anchor` towards `target` and SMOOTHNESS times the data weight between neighbours."""
+        `anchor` towards `target` and `pull` times the data weight between neighbours."""
         size = self.size
         matrix = self.matrix.view(3, size, size, len(STENCIL))
         solved = self.coverage.view(size, size) >= MIN_COVERAGE
         if not solved.any():
             return target.clone(), solved
-        smoothness = SMOOTHNESS * self.data_weight()
+        smoothness = pull * self.data_weight()
 
         def apply(albedo):
             padded = torch.nn.functional.pad(albedo, (1, 1, 1, 1))
