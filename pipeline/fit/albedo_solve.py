@@ -197,9 +197,10 @@ def neighbour_pull(problem, size, frames=None) -> float:
     A texel that more pixels see is measured with less noise, and a fixed pull then blurs what the
     frames hold: the phone-like clip's finer solve (texels 3.1 pixels across) gave frames that its
     fitted avatar wearing the true albedo explains exactly back at 0.61 of that albedo's sharpness
-    under a pull of 1e-2, at 0.81 and nearer the truth under 1e-3 (what this rule gives it), while on the
-    demo clip (texels 1.9 pixels across) 1e-3 took in noise: the albedo 0.3-0.5 dB further from the
-    truth on 3 seeds (docs/fidelity.md, "The neighbour pull loosened")."""
+    under a pull of 1e-2, at 0.81 and nearer the truth under 1e-3 (what this rule gives it). On the
+    demo clip (texels 1.9 pixels across) a flat 1e-3 took in noise (the albedo 0.3-0.5 dB further from
+    the truth on 3 seeds), and this rule's 2.7e-3 still costs it 0.2-0.4 dB there, with the held-out
+    frames 0.1-0.2 dB nearer (docs/fidelity.md, "The neighbour pull loosened")."""
     footprint = pixel_footprint(problem, _measured_frames(frames))
     if not math.isfinite(footprint) or footprint <= 0:
         return PULL_AT_A_PIXEL
