@@ -54,7 +54,7 @@ from ..render.rasterize import pixel_rays
 from ..render.renderer import lobe_colour, render
 from ..render.shading import environment_basis_values, sphere_radiance_basis
 from ..render.texture import bilinear_texels
-from .texel_footprint import FRAMES as FOOTPRINT_FRAMES, pixel_footprint
+from .texel_footprint import pixel_footprint
 
 MIN_COVERAGE = 1.0      # bilinear weight (about one pixel's worth) a texel needs to be solved
 MIN_SHADING = 0.05      # pixels darker than this (shading of an albedo of 1) carry no colour
@@ -201,21 +201,11 @@ def neighbour_pull(problem, size, frames=None) -> float:
     demo clip (texels 1.9 pixels across) a flat 1e-3 took in noise (the albedo 0.3-0.5 dB further from
     the truth on 3 seeds), and this rule's 2.7e-3 still costs it 0.2-0.4 dB there, with the held-out
     frames 0.1-0.2 dB nearer (docs/fidelity.md, "The neighbour pull loosened")."""
-    footprint = pixel_footprint(problem, _measured_frames(frames))
+    footprint = pixel_footprint(problem, frames)
     if not math.isfinite(footprint) or footprint <= 0:
         return PULL_AT_A_PIXEL
     texel_pixels = 1.0 / (size * math.sqrt(footprint))
     return PULL_AT_A_PIXEL / max(1.0, texel_pixels) ** 2
-
-
-def _measured_frames(frames):
-    """Up to texel_footprint.FRAMES of `frames` (default: all the fitted frames), spread evenly."""
-    if frames is None:
-        return None
-    frames = torch.as_tensor(frames, dtype=torch.long)
-    if len(frames) <= FOOTPRINT_FRAMES:
-        return frames
-    return frames[torch.linspace(0, len(frames) - 1, FOOTPRINT_FRAMES).round().long().unique()]
 
 
 def _solved_environment(seen, albedo, pixel_weight, ambient):

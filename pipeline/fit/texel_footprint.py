@@ -55,12 +55,12 @@ def pixel_shares(vertices, mesh, K, height, width):
 @torch.no_grad()
 def pixel_footprint(problem, frames=None) -> float:
     """The median share of the UV square (texels of a 1 x 1 texture) that one pixel the albedo solve
-    reads covers, over `problem`'s frames (indices; by default up to FRAMES spread over the clip) at
-    the size its clip holds them; nan where no frame shows a pixel."""
+    reads covers, over up to FRAMES of `problem`'s frames (indices; default all), spread evenly over
+    them, at the size its clip holds them; nan where no frame shows a pixel."""
     avatar, clip = problem.avatar, problem.clip
-    count = len(problem.frames)
-    if frames is None:
-        frames = torch.linspace(0, count - 1, min(FRAMES, count)).round().long().unique()
+    frames = torch.arange(len(problem.frames)) if frames is None else torch.as_tensor(frames, dtype=torch.long)
+    if len(frames) > FRAMES:
+        frames = frames[torch.linspace(0, len(frames) - 1, FRAMES).round().long().unique()]
     shares = []
     for batch in torch.as_tensor(frames, dtype=torch.long).split(BATCH):
         batch = batch.to(avatar.albedo.device)
