@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from synth_clips import ROOT, render_tiny_clip
-from pipeline.fit import estimate, fitting, stage_run
+from pipeline.fit import albedo_solve, estimate, fitting, stage_run
 from pipeline.fit.checkpoint import CHECKPOINT_FILE, load_checkpoint
 from pipeline.fit.settings import FitSettings
 from pipeline.formats import avatar_folder as av
@@ -37,6 +37,8 @@ def test_fit_writes_a_complete_avatar(tiny_clip, tmp_path):
     for name in (av.ALBEDO_FILE, av.NORMAL_FILE, "fit_grid.png", "overlay.mp4", "report.json"):
         assert (out / name).is_file(), name
     assert report["albedo_solve"]["solved_fraction"] > 0.1       # the albedo solve runs by default
+    low, high = albedo_solve.PULL_RANGE                             # with the pull its frames' noise gave it
+    assert low <= report["albedo_solve"]["neighbour_pull"] <= high
     scores = report["metrics"]
     assert all(np.isfinite(scores["psnr"])) and 0 < scores["silhouette_iou_min"] <= 1
     written = json.loads((out / "report.json").read_text())

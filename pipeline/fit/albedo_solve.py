@@ -13,9 +13,9 @@ per channel: I = S * bilinear(albedo, uv), I the frame's colour, S what the rend
 for an albedo of 1 (light, ambient ratio, shadows, normal map, exposure gain), bilinear() the
 renderer's own texture lookup (render/texture.py) at the pixel's UV: four texels and their
 weights. The normal equations couple each texel with its eight neighbours only, so they are
-gathered as a 3 x 3 stencil per texel and solved by conjugate gradients, with a weak pull
-(neighbour_pull) between neighbouring texels. Texels with less than MIN_COVERAGE of bilinear weight
-from the frames keep the value the fit gave them.
+gathered as a 3 x 3 stencil per texel and solved by conjugate gradients, with a pull between
+neighbouring texels as strong as the frames' noise asks (neighbour_pull). Texels with less than
+MIN_COVERAGE of bilinear weight from the frames keep the value the fit gave them.
 
 The frames also show what the renderer does not model (under a hard sun: shadow edges in other
 places, real skin's highlights). Solved pixel by pixel alike, that is baked into the albedo as
@@ -44,7 +44,6 @@ docs/fidelity.md has the figures.
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import torch
 
@@ -54,13 +53,15 @@ from ..render.rasterize import pixel_rays
 from ..render.renderer import lobe_colour, render
 from ..render.shading import environment_basis_values, sphere_radiance_basis
 from ..render.texture import bilinear_texels
-from .texel_footprint import pixel_footprint
 
 MIN_COVERAGE = 1.0      # bilinear weight (about one pixel's worth) a texel needs to be solved
 MIN_SHADING = 0.05      # pixels darker than this (shading of an albedo of 1) carry no colour
-# neighbour pull, against the mean data weight of a solved texel, where a texel is a pixel across or less; where the
-# frames the solve reads put more pixels across a texel it falls with the texel's area in pixels (neighbour_pull)
-PULL_AT_A_PIXEL = 1e-2
+# the pull between neighbouring texels, against the mean data weight of a solved texel: the first solve's (and the
+# environment rounds'), then the frames' noise over ALBEDO_STEP_VARIANCE (neighbour_pull), within PULL_RANGE
+FIRST_PULL = 1e-2
+ALBEDO_STEP_VARIANCE = 2.7e-3   # the least expected squared albedo step between neighbouring texels (skin's): the demo
+#                                 clip's noise over it gives the demo its best pull, 1e-2
+PULL_RANGE = (1e-4, 1e-1)
 ANCHOR = 1e-4           # the first solve's pull towards the current albedo, likewise
 WELL_SEEN = 8.0         # coverage of the texels that measure how far off the current albedo is
 PRIOR_COUNT = 4.0       # a texel's noise variance: the clip's, worth this many pixels, and its own
@@ -140,7 +141,7 @@ def solved_albedo(problem, shadows, batch_size=SOLVE_BATCH, supersample=1, frame
     if supersample > 1:
         finer = torch.nn.functional.interpolate(current[None], scale_factor=supersample, mode="bilinear",
                                                 align_corners=False)[0]
-        albedo, solved, _ = _solved(problem, shadows, batch_size, finer, solve_environment, frames)
+        albedo, solved, *_ = _solved(problem, shadows, batch_size, finer, solve_environment, frames)
         albedo = torch.nn.functional.avg_pool2d(albedo[None], supersample)[0]
         solved = torch.nn.functional.max_pool2d(solved[None, None].float(), supersample)[0, 0] > 0
         return albedo, solved
@@ -148,14 +149,14 @@ def solved_albedo(problem, shadows, batch_size=SOLVE_BATCH, supersample=1, frame
 
 
 def _solved(problem, shadows, batch_size, current, solve_environment=True, frames=None):
-    """(albedo, solved, environment coefficients (8, 3) or None when the light has none). In the
-    linear colour model the albedo is solved in linear light and returned sRGB-encoded, as the
-    avatar keeps it."""
+    """(albedo, solved, environment coefficients (8, 3) or None when the light has none, the
+    reweighted solves' neighbour pull or None when no pixel was usable). In the linear colour model
+    the albedo is solved in linear light and returned sRGB-encoded, as the avatar keeps it."""
     linear = problem.avatar.linear_light
-    albedo, solved, environment = _solved_in_shading_space(problem, shadows, batch_size,
-                                                           srgb_to_linear(current) if linear else current,
-                                                           solve_environment, frames)
-    return (linear_to_srgb(albedo.clamp(0, 1)) if linear else albedo), solved, environment
+    albedo, solved, environment, pull = _solved_in_shading_space(problem, shadows, batch_size,
+                                                                 srgb_to_linear(current) if linear else current,
+                                                                 solve_environment, frames)
+    return (linear_to_srgb(albedo.clamp(0, 1)) if linear else albedo), solved, environment, pull
 
 
 def _solved_in_shading_space(problem, shadows, batch_size, current, solve_environment, frames=None):
@@ -166,17 +167,18 @@ def _solved_in_shading_space(problem, shadows, batch_size, current, solve_enviro
     light_solved = environment is not None and solve_environment   # else the observations' shading holds it
     ambient = problem.avatar.ambient.item()
     if not len(seen.colour):                       # no frame shows a usable pixel of the hand
-        return current.clone(), torch.zeros(current.shape[1:], dtype=torch.bool, device=current.device), environment
+        return current.clone(), torch.zeros(current.shape[1:], dtype=torch.bool, device=current.device), \
+            environment, None
     uniform = seen.pixel_weights()
-    pull = neighbour_pull(problem, size, frames)
     first = _NormalEquations(size, seen, uniform)
-    albedo, solved = first.solve(current, ANCHOR * first.data_weight(), pull)
+    albedo, solved = first.solve(current, ANCHOR * first.data_weight(), FIRST_PULL)
     if light_solved:
         for _ in range(ENVIRONMENT_ROUNDS):
             environment = _solved_environment(seen, albedo, uniform, ambient)
             seen = seen.under_environment(environment)
             first = _NormalEquations(size, seen, uniform)
-            albedo, solved = first.solve(current, ANCHOR * first.data_weight(), pull, start=albedo)
+            albedo, solved = first.solve(current, ANCHOR * first.data_weight(), FIRST_PULL, start=albedo)
+    pull = neighbour_pull(seen, albedo, first)
     prior = None
     for _ in range(REWEIGHTINGS):
         weights, clip_variance = _consistency_weights(seen, albedo, size)
@@ -186,26 +188,43 @@ def _solved_in_shading_space(problem, shadows, batch_size, current, solve_enviro
             seen = seen.under_environment(environment)
         prior = _prior_weight(seen, first.coverage, albedo, current, clip_variance) if prior is None else prior
         albedo, solved = _NormalEquations(size, seen, weights).solve(current, prior, pull, start=albedo)
-    return albedo, solved, environment
+    return albedo, solved, environment, pull
 
 
-def neighbour_pull(problem, size, frames=None) -> float:
-    """The pull between neighbouring texels of a `size` texture solved from `problem`'s frames
-    (`frames`, indices; default all), against the mean data weight of a solved texel:
-    PULL_AT_A_PIXEL where a texel is a pixel across or less at the median pixel the solve reads
-    (texel_footprint.pixel_footprint), and that over the texel's area in pixels where it is more.
-    A texel that more pixels see is measured with less noise, and a fixed pull then blurs what the
-    frames hold: the phone-like clip's finer solve (texels 3.1 pixels across) gave frames that its
-    fitted avatar wearing the true albedo explains exactly back at 0.61 of that albedo's sharpness
-    under a pull of 1e-2, at 0.81 and nearer the truth under 1e-3 (what this rule gives it). On the
-    demo clip (texels 1.9 pixels across) a flat 1e-3 took in noise (the albedo 0.3-0.5 dB further from
-    the truth on 3 seeds), and this rule's 2.7e-3 still costs it 0.2-0.4 dB there, with the held-out
-    frames 0.1-0.2 dB nearer (docs/fidelity.md, "The neighbour pull loosened")."""
-    footprint = pixel_footprint(problem, frames)
-    if not math.isfinite(footprint) or footprint <= 0:
-        return PULL_AT_A_PIXEL
-    texel_pixels = 1.0 / (size * math.sqrt(footprint))
-    return PULL_AT_A_PIXEL / max(1.0, texel_pixels) ** 2
+def neighbour_pull(seen, albedo, equations) -> float:
+    """The reweighted solves' pull between neighbouring texels, against the mean data weight of a
+    solved texel: the frames' noise (the median over the pixels `seen` of the squared residual of
+    `albedo`, per channel) over the albedo's expected squared step between neighbouring texels, per
+    unit of the data weight of `equations` (the _NormalEquations `albedo` was solved from): the most
+    probable albedo under Gaussian pixel noise and a Gaussian prior on the steps. The expected step:
+    `albedo`'s own mean squared step over the solved texels (ink, a tattoo, creases) or skin's,
+    ALBEDO_STEP_VARIANCE, whichever is more. Within PULL_RANGE. Clean frames, or more pixels on each
+    texel, pull less: the detail they hold is measured, not noise. The phone-like clip's finer solve
+    (873 px frames, 74 pixels on a texel) gets about 4e-4 (a fixed 1e-2 blurred the albedo its frames
+    hold to 0.61 of its sharpness, 1e-3 to 0.81; 1e-3 and 3e-4 replayed alike); the demo clip (256 px,
+    noisier, 27 pixels on a texel) 1e-2, where 2.7e-3 and 1e-3 took its noise in; a ringed albedo under
+    a camera's noise 3.5e-3 (tests/test_albedo_solve.py; docs/fidelity.md, "The neighbour pull from the
+    frames' noise")."""
+    data_weight = equations.data_weight()
+    if not len(seen.colour) or data_weight <= 0:
+        return FIRST_PULL
+    noise = float((seen.colour - seen.predicted(albedo)).pow(2).mean(1).median())
+    steps = max(mean_squared_step(albedo, equations.coverage.view(albedo.shape[1:]) >= MIN_COVERAGE),
+                ALBEDO_STEP_VARIANCE)
+    low, high = PULL_RANGE
+    return min(max(noise / (steps * data_weight), low), high)
+
+
+def mean_squared_step(albedo, solved) -> float:
+    """The mean over channels and over pairs of neighbouring texels both `solved` (T, T) of the
+    squared difference of `albedo` (C, T, T); 0 where no pair is."""
+    total, pairs = 0.0, 0
+    for axis in (0, 1):
+        length = solved.shape[axis] - 1
+        both = solved.narrow(axis, 0, length) & solved.narrow(axis, 1, length)
+        squared = albedo.diff(dim=axis + 1).pow(2).mean(0)
+        total, pairs = total + float(squared[both].sum()), pairs + int(both.sum())
+    return total / pairs if pairs else 0.0
 
 
 def _solved_environment(seen, albedo, pixel_weight, ambient):
@@ -517,7 +536,9 @@ def _conjugate_gradients(apply, rhs, x, inverse_diagonal, iterations, tolerance=
 def solve_avatar_albedo(problem, shadows, solve_environment=True, frames=None) -> dict:
     """Replace the avatar's albedo (and environment light, when it has one and `solve_environment`)
     by the solved ones where the frames decide them (in place); returns the share of the UV charts
-    solved, the mean change there, and the environment's relative strength before and after.
+    solved, the mean change there, the neighbour pull the frames' noise gave the solve
+    (neighbour_pull; None where no pixel was usable) and the environment's relative strength before
+    and after.
     With `solve_environment` False the light is held as it stands and the albedo alone is solved
     (the finer pass of fitting._after_the_stages). `frames` (indices into the fitted frames,
     default all): the frames read."""
@@ -525,13 +546,13 @@ def solve_avatar_albedo(problem, shadows, solve_environment=True, frames=None) -
     before = avatar.light().environment
     light_solved = before is not None and solve_environment
     before = before.detach().clone() if light_solved else None
-    albedo, solved, environment = _solved(problem, shadows, SOLVE_BATCH, avatar.albedo.detach().clamp(0, 1),
-                                          solve_environment, frames)
+    albedo, solved, environment, pull = _solved(problem, shadows, SOLVE_BATCH, avatar.albedo.detach().clamp(0, 1),
+                                                solve_environment, frames)
     solved = solved & (problem.uv_mask.to(solved.device) > 0)
     change = (albedo - avatar.albedo.clamp(0, 1)).abs().mean(0)[solved]
     avatar.albedo.copy_(torch.where(solved[None], albedo, avatar.albedo))
     figures = {"solved_fraction": float(solved.sum() / (problem.uv_mask > 0).sum().clamp(min=1)),
-               "mean_change": float(change.mean()) if change.numel() else 0.0}
+               "mean_change": float(change.mean()) if change.numel() else 0.0, "neighbour_pull": pull}
     if light_solved:
         avatar.environment.copy_(environment)
         ambient = avatar.ambient.item()

@@ -288,7 +288,7 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
             state.albedo_solve = solve_avatar_albedo(problem, state.shadows.on, frames=painting)
         reporter.log(f"albedo solved from the frames on the final geometry and light: "
                      f"{state.albedo_solve['solved_fraction']:.0%} of the texels "
-                     f"(mean change {state.albedo_solve['mean_change']:.3f})"
+                     f"(mean change {state.albedo_solve['mean_change']:.3f}{_pull_words(state.albedo_solve)})"
                      + (" with the environment light" if "environment_strength" in state.albedo_solve else ""))
         with timed("light_decisions"):
             _decide_light(problem, state, reporter, solved=problem, frames=painting)
@@ -308,7 +308,7 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
                 f", into a texture grown from {texture['grown_from']} to {texture['texture_size']} texels"
             reporter.log(f"albedo solved again from the frames at {max(seen.clip.height, seen.clip.width)} px, "
                          f"the light held{grown}: {finer['solved_fraction']:.0%} of the texels "
-                         f"(mean change {finer['mean_change']:.3f})")
+                         f"(mean change {finer['mean_change']:.3f}{_pull_words(finer)})")
             save()
     if state.texture_fill is None and not problem.known_appearance:
         with timed("texture_fill"):
@@ -425,6 +425,12 @@ def _decide_light_size(problem, state, reporter, painting):
     scores = ", ".join(f"{float(d):g} deg {l1:.4f}" for d, l1 in state.light_size["candidates"].items())
     reporter.log(f"light size auto: L1 in the masks of {len(probe)} fitted frames, the light's angular radius: "
                  f"{scores} -> {state.light_size['degrees']:g} deg")
+
+
+def _pull_words(figures):
+    """', neighbour pull P' for an albedo solve's figures (solve_avatar_albedo) that have one."""
+    pull = figures.get("neighbour_pull")
+    return "" if pull is None else f", neighbour pull {pull:.1e}"
 
 
 def _painting_frames(problem, state, reporter):
