@@ -104,10 +104,14 @@ def solved_with_noise(problem, monkeypatch, deviation, pull=None):
     noise = torch.randn(clean.shape, generator=torch.Generator().manual_seed(0), dtype=clean.dtype)
     pulls = []
     rule = albedo_solve.neighbour_pull
+
+    def recorded(*args):
+        pulls.append(rule(*args) if pull is None else pull)
+        return pulls[-1]
+
     with monkeypatch.context() as patch:
         patch.setattr(problem.clip, "images", (clean + deviation * noise).clamp(0, 1))
-        patch.setattr(albedo_solve, "neighbour_pull",
-                      lambda *args: pulls.append(rule(*args) if pull is None else pull) or pulls[-1])
+        patch.setattr(albedo_solve, "neighbour_pull", recorded)
         albedo, read = solved_albedo(problem, shadows=False)
     return albedo.numpy(), read.numpy() & (problem.uv_mask.numpy() > 0), pulls[-1]
 
