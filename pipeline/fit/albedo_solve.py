@@ -178,10 +178,10 @@ def _solved_in_shading_space(problem, shadows, batch_size, current, solve_enviro
             seen = seen.under_environment(environment)
             first = _NormalEquations(size, seen, uniform)
             albedo, solved = first.solve(current, ANCHOR * first.data_weight(), FIRST_PULL, start=albedo)
-    pull = neighbour_pull(seen, albedo, first)
-    prior = None
+    prior, pull = None, None
     for _ in range(REWEIGHTINGS):
-        weights, clip_variance = _consistency_weights(seen, albedo, size)
+        weights, clip_variance, noise = _consistency_weights(seen, albedo, size)
+        pull = neighbour_pull(noise, albedo, first) if pull is None else pull
         weights = seen.pixel_weights(weights)
         if light_solved:
             environment = _solved_environment(seen, albedo, weights, ambient)
@@ -191,11 +191,12 @@ def _solved_in_shading_space(problem, shadows, batch_size, current, solve_enviro
     return albedo, solved, environment, pull
 
 
-def neighbour_pull(seen, albedo, equations) -> float:
+def neighbour_pull(noise, albedo, equations) -> float:
     """The reweighted solves' pull between neighbouring texels, against the mean data weight of a
-    solved texel: the frames' noise (the median over the pixels `seen` of the squared residual of
-    `albedo`, per channel) over the albedo's expected squared step between neighbouring texels, per
-    unit of the data weight of `equations` (the _NormalEquations `albedo` was solved from): the most
+    solved texel: the frames' `noise` (the median over the pixels of the squared residual of
+    `albedo`, per channel: _consistency_weights) over the albedo's expected squared step between
+    neighbouring texels, per unit of the data weight of `equations` (the _NormalEquations `albedo`
+    was solved from): the most
     probable albedo under Gaussian pixel noise and a Gaussian prior on the steps. The expected step:
     `albedo`'s own mean squared step over the solved texels (ink, a tattoo, creases) or skin's,
     ALBEDO_STEP_VARIANCE, whichever is more. Within PULL_RANGE. Clean frames, or more pixels on each
@@ -206,9 +207,8 @@ def neighbour_pull(seen, albedo, equations) -> float:
     a camera's noise 3.5e-3 (tests/test_albedo_solve.py; docs/fidelity.md, "The neighbour pull from the
     frames' noise")."""
     data_weight = equations.data_weight()
-    if not len(seen.colour) or data_weight <= 0:
+    if data_weight <= 0:
         return FIRST_PULL
-    noise = float((seen.colour - seen.predicted(albedo)).pow(2).mean(1).median())
     steps = max(mean_squared_step(albedo, equations.coverage.view(albedo.shape[1:]) >= MIN_COVERAGE),
                 ALBEDO_STEP_VARIANCE)
     low, high = PULL_RANGE
@@ -387,12 +387,14 @@ def decided_texels(problem, batch_size=SOLVE_BATCH, frames=None):
 
 def _consistency_weights(seen, albedo, size):
     """((N,) each pixel's weight for the next solve; the clip's noise variance, the median
-    squared residual, at least NOISE_FLOOR squared). A pixel's weight: a Cauchy weight of its
-    residual against the clip's noise (an outlier: a shadow or highlight in one frame), times the
-    clip's noise variance over its texels' (bilinear mix), each texel's from the residuals of
-    its pixels weighted so (the frames disagree on it, beyond single outliers)."""
+    squared residual, at least NOISE_FLOOR squared; that median as it is, a float). A pixel's
+    weight: a Cauchy weight of its residual against the clip's noise (an outlier: a shadow or
+    highlight in one frame), times the clip's noise variance over its texels' (bilinear mix), each
+    texel's from the residuals of its pixels weighted so (the frames disagree on it, beyond single
+    outliers)."""
     squared = (seen.colour - seen.predicted(albedo)).pow(2).mean(1)
-    clip_variance = squared.median().clamp(min=NOISE_FLOOR ** 2)
+    median = squared.median()
+    clip_variance = median.clamp(min=NOISE_FLOOR ** 2)
     inlier = 1 / (1 + squared / (OUTLIER_SCALE ** 2 * clip_variance))
     spread = torch.zeros(size * size, dtype=squared.dtype, device=squared.device)
     count = torch.zeros_like(spread)
@@ -402,7 +404,7 @@ def _consistency_weights(seen, albedo, size):
     # was fitted to them
     texel_variance = (spread + PRIOR_COUNT * clip_variance) / ((count - 1).clamp(min=0) + PRIOR_COUNT)
     pixel_variance = (texel_variance[seen.texels] * seen.weights).sum(1)
-    return inlier * clip_variance / pixel_variance, clip_variance
+    return inlier * clip_variance / pixel_variance, clip_variance, float(median)
 
 
 def _prior_weight(seen, coverage, solved, current, clip_variance):
