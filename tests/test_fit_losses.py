@@ -204,6 +204,28 @@ def test_temporal_terms_vanish_on_steady_motion_and_count_time_gaps():
     assert losses.temporal_global_loss(rotations, jolted, times).item() == pytest.approx(expected, rel=1e-4)
 
 
+
+def test_the_translations_as_the_camera_sees_them_are_blind_to_the_scenes_scale():
+    """With a reference depth the temporal term measures image position and log depth: the same
+    jolted path scaled by 1.1 about the camera (a larger hand farther away) costs what it did,
+    where in metres it costs 1.1^2 times more; at the reference depth a 1 mm sideways or
+    forward jolt costs as much as in metres (to first order)."""
+    times = torch.tensor([0, 1, 2, 3, 4])
+    rotations = torch.eye(3).expand(5, 3, 3)
+    path = torch.stack([0.002 * times, 0 * times, 0.5 + 0 * times], 1).double()
+    path[2, 0] += 0.004
+    path[3, 2] -= 0.006
+    camera = losses.temporal_global_loss(rotations, path, times, reference_depth=0.5)
+    assert losses.temporal_global_loss(rotations, path * 1.1, times, reference_depth=0.5).item() \
+        == pytest.approx(camera.item(), rel=1e-9)
+    metres = losses.temporal_global_loss(rotations, path, times)
+    assert losses.temporal_global_loss(rotations, path * 1.1, times).item() == pytest.approx(1.21 * metres.item(), rel=1e-9)
+    for axis in (0, 2):
+        still = torch.tensor([[0.0, 0.0, 0.5]], dtype=torch.float64).repeat(5, 1)
+        still[2, axis] += 1e-3
+        assert losses.temporal_global_loss(rotations, still, times, reference_depth=0.5).item() == pytest.approx(
+            losses.temporal_global_loss(rotations, still, times).item(), rel=5e-3)
+
 def test_coarse_displacements_are_carried_to_every_subdivided_point():
     """displacement_grid "coarse": one displacement per unsubdivided vertex; each subdivided
     point moves along its rest normal by the mean of its parents', so a constant field is the

@@ -123,10 +123,19 @@ def _temporal_pose(batch):
     return losses.temporal_pose_loss(avatar.pose * avatar.pose_mask, avatar.frame_numbers)
 
 
-@_term("temporal_global", 1.0, _GEOMETRY)
+def _reference_depth(problem):
+    """The initial estimate's mean depth over the fitted frames (metres), when the translations'
+    smoothness is measured as the camera sees them (settings.translation_smoothness "camera")."""
+    if problem.settings.translation_smoothness != "camera":
+        return None
+    return float(problem.initial.transl[problem.clip.frames, 2].mean())
+
+
+@_term("temporal_global", 1.0, _GEOMETRY, prepare=_reference_depth)
 def _temporal_global(batch):
     avatar = batch.problem.avatar
-    return losses.temporal_global_loss(axis_angle_to_matrix(avatar.global_orient), avatar.transl, avatar.frame_numbers)
+    return losses.temporal_global_loss(axis_angle_to_matrix(avatar.global_orient), avatar.transl, avatar.frame_numbers,
+                                       reference_depth=batch.problem.term_data.get("temporal_global"))
 
 
 @_term("displacement", 2.0, _SURFACE)

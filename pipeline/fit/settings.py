@@ -141,6 +141,10 @@ class FitSettings:
     # phone-like clip's 3 seeds: "scale" new poses +0.4-1.8 dB, surface 0.60-0.66 mm, joints level; "hand" and
     # "palm" held the proportions back and cost the joints 0.06-0.16 mm (docs/fidelity.md)
     size_measure: str = "scale"
+    # how the temporal term measures the hand's translations: "metres", as the camera's frame holds them, or
+    # "camera", as the camera sees them (image position and log depth, losses.camera_relative_translations), blind
+    # to the whole scene's scale, which metres are not: they favour a nearer, smaller hand
+    translation_smoothness: str = "metres"
     weights: dict = dataclasses.field(default_factory=default_weights)
     # {term: {stage name: factor}}: a term's weight in a stage, times this (energy_terms.EnergyTerm.stage_factors)
     stage_factors: dict = dataclasses.field(default_factory=dict)
@@ -161,6 +165,8 @@ class FitSettings:
             raise ValueError(f"light_search must be 'on' or 'off', got {self.light_search!r}")
         if self.size_anchor not in ("initial", "alignment"):
             raise ValueError(f"size_anchor must be 'initial' or 'alignment', got {self.size_anchor!r}")
+        if self.translation_smoothness not in ("metres", "camera"):
+            raise ValueError(f"translation_smoothness must be 'metres' or 'camera', got {self.translation_smoothness!r}")
         if self.size_measure not in SIZE_MEASURES:
             raise ValueError(f"size_measure must be one of {', '.join(map(repr, SIZE_MEASURES))}, got {self.size_measure!r}")
         if not 0 <= self.size_tolerance < 1:
@@ -214,6 +220,7 @@ class FitSettings:
         values.setdefault("restart_lost_frames", "off")   # saved before lost frames were started again
         values.setdefault("light_search", "off")          # saved before the light was searched
         values.setdefault("align_downscale", 1)           # saved before the alignment rendered smaller
+        values.setdefault("translation_smoothness", "metres")   # saved before the choice
         # saved before the size was held by default: the size prior as it was then (weight 0 unless asked for)
         values.setdefault("size_anchor", "initial")
         values.setdefault("size_tolerance", SIZE_TOLERANCE)
