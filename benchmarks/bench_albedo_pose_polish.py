@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_albedo_pose_polish.py FIT SEQ OUT [--steps 150] [--move-shape]
         [--light-size] [--texture-size 512] [--solve-sequence SEQ_LARGER --solve-resolution 896] [--checkpoint]
+        [--fit-options JSON]
 
 The fit's work after the stages done again on its final state (fitting._after_the_stages: the
 albedo and room light solved from the working frames, then the albedo alone from the frames at
@@ -18,7 +19,8 @@ fill a finer (or coarser) texture. `--solve-sequence`: the same clip imported la
 finer solve's at `--solve-resolution`, default the fit's). The avatar (the fit folder with the new
 albedo.png) goes to OUT and is scored against the synthetic SEQ's true hand (evaluate/fidelity.py),
 its sharpness also at 256 texels (each albedo shrunk to 256 against the truth at 256: the figure
-that compares texture sizes); one JSON line. `--checkpoint` also writes the replayed avatar into
+that compares texture sizes); one JSON line. `--fit-options`: FitSettings fields that replace the
+checkpoint's for the replay (e.g. '{"albedo_openness": "on"}'). `--checkpoint` also writes the replayed avatar into
 OUT's checkpoint.pt, which `harp evaluate OUT SEQ` reads (the held-out frames scored on it). The figures of docs/fidelity.md
 ("The poses polished against the solved albedo") come from this script.
 """
@@ -57,11 +59,12 @@ SHAPE = ("betas", "displacement")
 COMPARED_SIZE = 256
 
 
-def replay_problem(fit, sequence, texture_size=None, solve_resolution=None):
+def replay_problem(fit, sequence, texture_size=None, solve_resolution=None, fit_options=None):
     """The fit's problem over its frames of `sequence`, every parameter as fitted, its textures
-    resampled to `texture_size` and its finer solve at `solve_resolution` where given; its shadows."""
+    resampled to `texture_size` and its finer solve at `solve_resolution` where given, the settings
+    `fit_options` ({field: value}) replaced; its shadows."""
     saved, report = load_finished_fit(fit, "cpu")
-    settings = saved.settings
+    settings = dataclasses.replace(saved.settings, **(fit_options or {}))
     if solve_resolution:
         settings = dataclasses.replace(settings, solve_resolution=solve_resolution)
     problem = build_problem(Path(sequence), settings, report["frames"], "cpu", shared=dict(saved.avatar))
@@ -72,12 +75,12 @@ def replay_problem(fit, sequence, texture_size=None, solve_resolution=None):
 
 
 def polished(fit, sequence, steps, move_shape=False, seed=0, light_size=False, texture_size=None,
-             solve_resolution=None):
+             solve_resolution=None, fit_options=None):
     """The fit's avatar after the work after the stages with `steps` polishing steps (and with
     `light_size`, the light's size decided first, as FitSettings.light_size "auto" does; with
-    `texture_size` and `solve_resolution`, replay_problem's); seconds, the light size's decision
+    `texture_size`, `solve_resolution` and `fit_options`, replay_problem's); seconds, the light size's decision
     (None without it), {"pixel_footprint", "fitting_texture_size", "solve_px"} of the finer solve's frames."""
-    problem, shadows = replay_problem(fit, sequence, texture_size, solve_resolution)
+    problem, shadows = replay_problem(fit, sequence, texture_size, solve_resolution, fit_options)
     started = time.perf_counter()
     problem.avatar.measure_occlusion(exact=True)
     painting = frames_kept(frames_off_their_silhouettes(problem), len(problem.frames))   # as the fit leaves out
@@ -129,12 +132,15 @@ def main():
     parser.add_argument("--checkpoint", action="store_true",
                         help="write OUT's checkpoint.pt with the replayed avatar, so that `harp evaluate OUT SEQ` "
                              "scores its held-out frames")
+    parser.add_argument("--fit-options", type=json.loads, default={},
+                        help="FitSettings fields (JSON) replacing the checkpoint's for the replay")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     avatar, seconds, decision, texels = polished(args.fit, args.solve_sequence or args.sequence, args.steps,
                                                  args.move_shape, light_size=args.light_size,
                                                  texture_size=args.texture_size,
-                                                 solve_resolution=args.solve_resolution)
+                                                 solve_resolution=args.solve_resolution,
+                                                 fit_options=args.fit_options)
     shutil.copytree(args.fit, args.out, dirs_exist_ok=True)
     albedo = avatar.albedo.detach().clamp(0, 1).permute(1, 2, 0).cpu().numpy()
     write_png(args.out / av.ALBEDO_FILE, np.round(albedo * 255).astype(np.uint8))

@@ -13,7 +13,8 @@ from pipeline.fit.settings import settings_for
 from pipeline.fit.texel_footprint import fitting_texture_size, grow_texture, pixel_footprint
 import pipeline.fit.albedo_solve as albedo_solve
 from pipeline.fit.albedo_solve import (STENCIL, _facing, _NormalEquations, _Observations, _observations,
-                                       solve_avatar_albedo, solved_albedo)
+                                       decided_texels, solve_avatar_albedo, solved_albedo)
+from pipeline.fit.texture_fill import fill_avatar_albedo
 from pipeline.init import initialise_sequence
 from pipeline.render.renderer import render
 from pipeline.render.texture import bilinear_texels
@@ -443,6 +444,47 @@ def test_where_the_hand_hides_the_room_from_itself_the_solve_does_not_darken_the
     # bounce_radiance, gives back 0.6-0.7 of what a pale skin blocks)
     assert errors[True] < 0.005 and errors[False] > 4 * errors[True], errors
     assert darker[False] > 0.01 and abs(darker[True]) < 0.003, darker
+
+
+def test_the_openness_weight_is_full_in_the_open_and_none_in_a_hollow():
+    hidden = torch.tensor([0.0, albedo_solve.OPEN_UP_TO, (albedo_solve.OPEN_UP_TO + albedo_solve.ENCLOSED_FROM) / 2,
+                           albedo_solve.ENCLOSED_FROM, 1.0])
+    assert torch.allclose(albedo_solve.openness(hidden), torch.tensor([1.0, 1.0, 0.5, 0.0, 0.0]))
+
+
+def test_the_hollows_of_a_fist_are_left_to_the_fill(tmp_path_factory):
+    """Frames of a fist, drawn with the room light held back from its hollows, solved as if every
+    point saw the whole room (as a fit whose light model lacks what lights a hollow): with every
+    pixel alike the hollows' darkness goes into the albedo; with the pixels weighed by their
+    openness (FitSettings.albedo_openness, the default) the hollows are not decided by the frames
+    and the fill gives them the skin around them."""
+    skin = np.broadcast_to(np.array([0.78, 0.58, 0.48])[:, None, None], (3, TEXTURE, TEXTURE)).copy()
+    problem, truth = problem_rendered_with(tmp_path_factory, skin, NAMED_POSES["fist"])
+    avatar = problem.avatar
+    hollow = _texels_where(problem, lambda lost: lost[..., 0] > albedo_solve.ENCLOSED_FROM)
+    open_ = _texels_where(problem, lambda lost: lost[..., 0] < albedo_solve.OPEN_UP_TO) & ~hollow
+    assert hollow.sum() > 30
+    avatar.occlusion = False
+    start = avatar.albedo.detach().clone()
+    darker, open_error, decided = {}, {}, {}
+    for openness in ("off", "on"):
+        problem.settings = dataclasses.replace(problem.settings, albedo_openness=openness)
+        with torch.no_grad():
+            avatar.albedo.copy_(start)
+        solve_avatar_albedo(problem, shadows=False)
+        decided[openness] = decided_texels(problem).numpy()
+        fill_avatar_albedo(avatar, torch.as_tensor(decided[openness]))
+        albedo = avatar.albedo.detach().numpy()
+        darker[openness] = (truth - albedo).mean(0)[hollow].mean()
+        open_error[openness] = np.abs(truth - albedo).mean(0)[open_ & decided[openness]].mean()
+    avatar.occlusion = True
+    figures = (darker, {k: v[hollow].mean() for k, v in decided.items()}, open_error)
+    # measured: the hollows darker by 0.060 with every pixel alike, 0.018 weighed (what is left: texels the
+    # half-open skin at their rim decides, and the fill from it); 60% of the hollows decided by the frames
+    # against 10% (those some open pixel shows too); the open skin within 0.0024 of the truth either way
+    assert darker["off"] > 0.04 and abs(darker["on"]) < 0.35 * darker["off"], figures
+    assert figures[1]["off"] > 0.5 and figures[1]["on"] < 0.15, figures
+    assert open_error["on"] < 0.005 and open_error["off"] < 0.005, figures
 
 
 def _texels_where(problem, condition):

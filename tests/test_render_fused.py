@@ -47,7 +47,7 @@ def _render_with_gradients(scene, fused_path, light_per_frame=False):
                     appearance=Appearance(leaves["albedo"], leaves["normal_map"]),
                     light=Light(leaves["light"], leaves["ambient"], shadows=True, shadow_resolution=64,
                                 occlusion=lost_light(points, mesh.faces)),
-                    background=background, fused=fused_path)
+                    background=background, fused=fused_path, vertex_values=leaves["points"])
     generator = torch.Generator().manual_seed(5)
     loss = sum((torch.nan_to_num(image, posinf=0.0) * torch.rand(image.shape, generator=generator,
                                                                   dtype=image.dtype)).sum()
@@ -68,6 +68,10 @@ def test_fused_and_reference_paths_agree(hand_scene, light_per_frame):
     for name, grad in reference_grads.items():
         assert grad.abs().max() > 0, name
         assert torch.allclose(fused_grads[name], grad, atol=1e-5 * grad.abs().max(), rtol=0), name
+    # a per-vertex value interpolated over the faces as the surface is: the vertices give back the surface point
+    inside = reference_images["alpha"][..., 0] > 0
+    for images in (reference_images, fused_images):
+        assert torch.allclose(images["vertex_values"][inside], images["position"][inside], atol=1e-9, rtol=0)
 
 @pytest.mark.parametrize("light_per_frame", [False, True])
 def test_the_lobes_share_from_one_renders_outputs(hand_scene, light_per_frame):

@@ -36,6 +36,15 @@ head-on in one frame and at a grazing angle in another takes its colour from the
 pixel covers the least skin and the rim's light (Fresnel sheen, subsurface glow, the mask's edge)
 counts least; a texel only ever seen at grazing angles still takes theirs.
 
+With `FitSettings.albedo_openness` "on" (the default), each pixel's equations also weigh by how much
+of the room its surface sees (`openness`): fully where the hand hides less than OPEN_UP_TO of the
+room's cosine-weighted light from it (O_0 of render/occlusion.py), not at all from ENCLOSED_FROM
+on, linearly between. Inside a closing fist or between pressed fingers most of a point's light is
+what the skin around it sends back, which the renderer models as one constant bounce at best; a
+real clip that opens on a fist put the fist's hollows into the fingers' palm side as dark purple
+patches (docs/fidelity.md). Texels only such pixels show are left to the fill (decided_texels
+weighs the same way).
+
 The specular lobe (formats/specular_lobe.py) adds a white sheen that does not scale with the
 albedo: I = S * albedo + g P, P the lobe's share at the pixel. Its part g P, fixed by the fitted
 geometry, light and lobe, is taken off each pixel's colour before the solve.
@@ -56,6 +65,8 @@ from ..render.texture import bilinear_texels
 
 MIN_COVERAGE = 1.0      # bilinear weight (about one pixel's worth) a texel needs to be solved
 MIN_SHADING = 0.05      # pixels darker than this (shading of an albedo of 1) carry no colour
+OPEN_UP_TO = 0.15       # FitSettings.albedo_openness: a pixel whose surface the hand hides this share of the
+ENCLOSED_FROM = 0.35    # room from weighs fully; from this share on, not at all (openness)
 # the pull between neighbouring texels, against the mean data weight of a solved texel: the first solve's (and the
 # environment rounds'), then the frames' noise over ALBEDO_STEP_VARIANCE (neighbour_pull), within PULL_RANGE
 FIRST_PULL = 1e-2
@@ -88,7 +99,8 @@ class _Observations:
     bilinear weights (N, 4), its shading (N, 3) and colour (N, 3); with an environment light,
     also the shading without it (N, 3, exposure gain included), the gain (N, 3) and the
     harmonics at the pixel's shading normal (N, 8); with FitSettings.albedo_facing on, how
-    squarely each pixel sees the surface (N,) in [0, 1] (_facing)."""
+    squarely each pixel sees the surface (N,) in [0, 1] (_facing); with FitSettings.albedo_openness on,
+    how much of the room it sees (N,) in (0, 1] (openness)."""
     texels: torch.Tensor
     weights: torch.Tensor
     shading: torch.Tensor
@@ -97,11 +109,15 @@ class _Observations:
     gain: torch.Tensor | None = None
     basis: torch.Tensor | None = None
     facing: torch.Tensor | None = None
+    openness: torch.Tensor | None = None
 
     def pixel_weights(self, weights=None):
-        """(N,) the solve's weight of each pixel: `weights` (default 1) times its facing, when on."""
+        """(N,) the solve's weight of each pixel: `weights` (default 1) times its facing and its
+        openness, where they are on."""
         weights = torch.ones_like(self.shading[:, 0]) if weights is None else weights
-        return weights if self.facing is None else weights * self.facing
+        for factor in (self.facing, self.openness):
+            weights = weights if factor is None else weights * factor
+        return weights
 
     def albedo_at(self, albedo):
         """(N, 3) the albedo each pixel sees (bilinear, as the renderer) for a (3, T, T) albedo."""
@@ -287,6 +303,7 @@ def _observations(problem, shadows, batch_size, size, frames=None):
     avatar, clip = problem.avatar, problem.clip
     appearance = dataclasses.replace(avatar.appearance(), albedo=torch.ones_like(avatar.albedo))
     facing_on = problem.settings.albedo_facing == "on"
+    openness_on = problem.settings.albedo_openness == "on"
     # the least shading (of an albedo of 1) that carries colour, in the shading's units (the encoding is monotonic)
     darkest = srgb_to_linear(torch.tensor(MIN_SHADING)).item() if avatar.linear_light else MIN_SHADING
     parts = []
@@ -300,10 +317,11 @@ def _observations(problem, shadows, batch_size, size, frames=None):
         lobe_lost = specular is not None and light.occlusion is not None   # the lobe's room sheen less the lost share
         outputs = ("rgb", "uv", "alpha") + (() if environment is None and specular is None else ("shading_normal",)) \
             + (("lost_light",) if occluded or lobe_lost else ()) + (("normal",) if facing_on else ()) \
-            + (() if specular is None else ("position", "light_visibility"))
+            + (() if specular is None else ("position", "light_visibility")) + (("vertex_values",) if openness_on else ())
         images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=outputs,
                         appearance=appearance, light=dataclasses.replace(light, environment=None, specular=None),
-                        antialiased=False)
+                        antialiased=False,
+                        vertex_values=_room_hidden(avatar, batch, vertices) if openness_on else None)
         # the pixels of the mask that the surface covers, each from here on a row (a fifth of the image or less)
         usable = problem.colour_pixels(batch, albedo_solve=True) & (images["alpha"][..., 0] > 0.5)
         gain = avatar.exposure_gain(batch) if problem.exposure_on else torch.ones_like(avatar.exposure_gain(batch))
@@ -320,6 +338,9 @@ def _observations(problem, shadows, batch_size, size, frames=None):
                 basis = basis - images["lost_light"][usable][..., 1:]
             shading = base + gain * (basis @ environment)
         bright = shading.min(-1).values > darkest
+        if openness_on:
+            open_share = openness(images["vertex_values"][usable][:, 0])
+            bright = bright & (open_share > 0)
         if specular is not None:
             # the lobe's highlight and its sheen of the room (at the light's environment as it stands: the
             # environment solve below does not move it), from this render's surface at the usable pixels (a
@@ -330,13 +351,28 @@ def _observations(problem, shadows, batch_size, size, frames=None):
             colour = colour - gain * sheen
         facing = _facing(images["normal"], clip.K[batch])[usable][bright] if facing_on else None
         parts.append((images["uv"][usable][bright], shading[bright], colour[bright])
-                     + ((facing,) if facing_on else ())
+                     + ((facing,) if facing_on else ()) + ((open_share[bright],) if openness_on else ())
                      + (() if environment is None else (base[bright], gain[bright], basis[bright])))
     uv, shading, colour, *rest = (torch.cat(column) for column in zip(*parts))
     facing = rest.pop(0) if facing_on else None
+    open_share = rest.pop(0) if openness_on else None
     rows, columns, weights = bilinear_texels(uv, size)
     texels = (rows * size + columns).to(torch.int32)    # int32: memory
-    return _Observations(texels, weights, shading, colour, *rest, facing=facing)
+    return _Observations(texels, weights, shading, colour, *rest, facing=facing, openness=open_share)
+
+
+def openness(hidden):
+    """The solve's weight of pixels whose surface the hand hides the share `hidden` (O_0 of
+    render/occlusion.py: cosine-weighted, 0 in the open, 1 enclosed) of the room from: 1 up to
+    OPEN_UP_TO, 0 from ENCLOSED_FROM, linear between."""
+    return ((ENCLOSED_FROM - hidden) / (ENCLOSED_FROM - OPEN_UP_TO)).clamp(0.0, 1.0)
+
+
+def _room_hidden(avatar, batch, vertices):
+    """(B, V, 1) O_0 at each vertex of the frames `batch` posed as `vertices`: the avatar's own
+    measurement of the room light's occlusion (Avatar.room_occlusion, kept per frame), whether the
+    fit shades with it or not."""
+    return avatar.room_occlusion(batch, vertices)[..., :1]
 
 
 def stencil_places(texels, size):
@@ -368,19 +404,24 @@ def decided_texels(problem, batch_size=SOLVE_BATCH, frames=None):
     """(T, T) bool: the texels of the avatar's albedo that its frames decide (of `frames`, indices
     into the fitted frames, default all), those the pixels the solve reads
     (FitProblem.compared_pixels with albedo_solve) give at least MIN_COVERAGE of bilinear weight:
-    the texels the solve solves. Any other texel holds what the appearance stage left (its starting
+    the texels the solve solves, each pixel weighted by its openness where FitSettings.albedo_openness
+    is on (as the solve weighs it). Any other texel holds what the appearance stage left (its starting
     colour where no compared pixel reached it: a finger's side, seen edge-on at the silhouette),
     and texture_fill.py fills it."""
     avatar, clip = problem.avatar, problem.clip
+    openness_on = problem.settings.albedo_openness == "on"
     size = avatar.albedo.shape[-1]
     coverage = torch.zeros(size * size, dtype=avatar.albedo.dtype, device=avatar.albedo.device)
     chosen = torch.arange(len(problem.frames)) if frames is None else torch.as_tensor(frames, dtype=torch.long)
     for batch in chosen.to(avatar.albedo.device).split(batch_size):
         vertices, _ = avatar.posed(batch)
-        images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width, outputs=("uv", "alpha"),
-                        antialiased=False)
+        images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width,
+                        outputs=("uv", "alpha") + (("vertex_values",) if openness_on else ()), antialiased=False,
+                        vertex_values=_room_hidden(avatar, batch, vertices) if openness_on else None)
         usable = problem.compared_pixels(batch, albedo_solve=True) & (images["alpha"][..., 0] > 0.5)
         rows, columns, weights = bilinear_texels(images["uv"][usable], size)
+        if openness_on:
+            weights = weights * openness(images["vertex_values"][usable][:, :1])
         coverage.index_add_(0, (rows * size + columns).flatten(), weights.flatten().to(coverage.dtype))
     return coverage.view(size, size) >= MIN_COVERAGE
 

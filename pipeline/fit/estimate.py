@@ -44,6 +44,9 @@ SPEED_MEMORY_SECONDS = 60.0  # ...and follows a change (another process starting
 # a fit with the room light's occlusion measures every frame's about this many times: at the start of the two
 # shaded stages, at the end, and as poses move (the phone-like clip's `fast` fit: 120 measurements of 24 frames)
 OCCLUSION_MEASUREMENTS = 5
+# without it, the albedo solve that weighs its pixels by their openness (FitSettings.albedo_openness) measures
+# every frame's once, timed on this many frames
+OPENNESS_TIMED_FRAMES = 4
 # The work after the stages, fitted to report.json's after_stages_seconds and output_seconds (docs/performance.md,
 # "The work after the stages"): every fitted frame rendered this many times at a joint step's cost per frame by the
 # albedo solve and the outputs, plus seconds of work over a 256 texture (the solve's conjugate gradients, with the
@@ -166,12 +169,19 @@ def calibrate(problem, schedule: Schedule, kinds) -> StepCosts:
     avatar's parameters come back bit-for-bit and the fit's generator is not touched. The room
     light's occlusion (Avatar.room_occlusion), when on, is measured for every frame first, timed on
     its own: the steps then time what they cost while the poses stay within its tolerance, and the
-    estimate counts OCCLUSION_MEASUREMENTS such measurements of every frame."""
+    estimate counts OCCLUSION_MEASUREMENTS such measurements of every frame. Without it, an albedo
+    solve that weighs its pixels by their openness measures every frame's once: timed on
+    OPENNESS_TIMED_FRAMES frames."""
     start = time.perf_counter()
     occlusion_seconds = 0.0
     if problem.avatar.occlusion:
         problem.avatar.measure_occlusion()
-        occlusion_seconds = time.perf_counter() - start
+        occlusion_seconds = (time.perf_counter() - start) * OCCLUSION_MEASUREMENTS
+    elif problem.settings.solve_albedo and problem.settings.albedo_openness == "on":
+        timed = torch.arange(min(OPENNESS_TIMED_FRAMES, len(problem.frames)), device=problem.avatar.pose.device)
+        with torch.no_grad():
+            problem.avatar.room_occlusion(timed, problem.avatar.posed(timed)[0])
+        occlusion_seconds = (time.perf_counter() - start) * len(problem.frames) / max(len(timed), 1)
     saved = copy.deepcopy(problem.avatar.state_dict())
     saved_occlusion = problem.avatar.occlusion_state()
     by_kind = {stage.kind: stage for stage in schedule}
@@ -197,7 +207,6 @@ def calibrate(problem, schedule: Schedule, kinds) -> StepCosts:
     fallback = fallback_costs(problem.settings, len(problem.frames)).seconds
     for kind, cost in fallback.items():   # kinds not timed (nothing to move) cost what the model says
         seconds.setdefault(kind, cost)
-    occlusion_seconds *= OCCLUSION_MEASUREMENTS
     return StepCosts(seconds, after_stages_seconds(seconds, problem.settings, len(problem.frames)) + occlusion_seconds,
                      calibrated=True, calibration_seconds=time.perf_counter() - start)
 

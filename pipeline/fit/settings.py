@@ -117,6 +117,9 @@ class FitSettings:
     # "off", the default: on the phone-like clip's seed 0 it lost 0.3 dB held out and its albedo was no nearer
     # the truth (one seed; docs/fidelity.md)
     albedo_facing: str = "off"
+    # the albedo solve's pixels weighed by how much of the room their surface sees (albedo_solve.openness):
+    # the hollows of a fist, lit by the skin around them more than by the room, leave the albedo to the fill
+    albedo_openness: str = "on"
     # frames kept out of the fit and scored as it runs: the best state is written (validation.py). Off until it
     # is shown to help: with `fast` on the demo clip (3 seeds) it left held-out PSNR level (27.76 dB both), joints
     # 0.11 mm worse, 10% more time; on the sun clip it went back to an earlier state whose surface was 36% worse
@@ -174,6 +177,8 @@ class FitSettings:
             raise ValueError(f"size_tolerance must be a fraction from 0 to 1, got {self.size_tolerance!r}")
         if self.albedo_facing not in ("on", "off"):
             raise ValueError(f"albedo_facing must be 'on' or 'off', got {self.albedo_facing!r}")
+        if self.albedo_openness not in ("on", "off"):
+            raise ValueError(f"albedo_openness must be 'on' or 'off', got {self.albedo_openness!r}")
         if not isinstance(self.align_downscale, int) or self.align_downscale < 1:
             raise ValueError(f"align_downscale must be a whole number from 1 (the working size), "
                              f"got {self.align_downscale!r}")
@@ -212,6 +217,7 @@ class FitSettings:
         values.setdefault("stage_factors", {})
         values.setdefault("environment", "off")          # saved before the environment light
         values.setdefault("specular", "off")             # saved before the specular lobe
+        values.setdefault("albedo_openness", "off")      # saved before the solve weighed pixels by it
         values.setdefault("light_size", "off")           # saved before the light had a size
         values.setdefault("grow_texture", False)         # saved before the finer solve grew the texture
         values.setdefault("final_rate_fraction", 1.0)    # saved before the learning rates fell

@@ -28,7 +28,7 @@ from .texture import sample_texture
 from .vector_ops import normalized
 
 OUTPUTS = ("alpha", "rgb", "depth", "normal", "albedo", "uv", "shading_normal", "lost_light", "position",
-           "light_visibility")
+           "light_visibility", "vertex_values")
 # the outputs that come from the shading of the rgb output, and with it only
 SHADING_OUTPUTS = ("shading_normal", "lost_light", "position", "light_visibility")
 
@@ -117,7 +117,7 @@ class Light:
 
 
 def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appearance=None,
-           light=None, background=None, antialiased=True, fused=True):
+           light=None, background=None, antialiased=True, fused=True, vertex_values=None):
     """Render a batch of frames of one mesh.
 
     points (B, V, 3) vertices in the camera frame (OpenCV axes, metres); K (3, 3) or (B, 3, 3).
@@ -128,7 +128,8 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
     the light's `occlusion` interpolated; only with rgb and an occlusion), position (3, the
     surface point, camera frame; only with rgb), light_visibility (1, the share of the point
     light that reaches the point: its shadow test, 1 without shadows, the mean over its points for
-    a light with a size; only with rgb). With
+    a light with a size; only with rgb), vertex_values (C, the per-vertex `vertex_values` (B, V, C)
+    interpolated over the faces as the surface is). With
     shading_normal, position, light_visibility and lost_light, lobe_colour gives the specular
     lobe's share of rgb at any pixel without a second render. alpha and rgb carry silhouette
     gradients when antialiased. fused=False takes the reference primitives (the same images and
@@ -141,6 +142,8 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
         raise ValueError(f"the {', '.join(SHADING_OUTPUTS)} outputs come with rgb only")
     if "lost_light" in outputs and (light is None or light.occlusion is None):
         raise ValueError("the lost_light output needs a light with an occlusion")
+    if "vertex_values" in outputs and vertex_values is None:
+        raise ValueError("the vertex_values output needs the vertex_values (B, V, C) to interpolate")
     ops = FUSED if fused else REFERENCE
     faces = mesh.faces
     rast = ops.rasterize(points.detach(), faces, K, height, width)
@@ -148,6 +151,9 @@ def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appea
     result = {}
     if "depth" in outputs:
         result["depth"] = rast.depth.unsqueeze(-1)
+    if "vertex_values" in outputs:
+        values, = ops.interpolate_many([vertex_values.to(points.dtype)], frags, faces)
+        result["vertex_values"] = to_image(values, frags)
     smooth_normals = position = None
     if "rgb" in outputs:
         smooth_normals, position = ops.interpolate_many([ops.vertex_normals(points, faces), points], frags, faces)
