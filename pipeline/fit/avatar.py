@@ -178,12 +178,12 @@ class Avatar(torch.nn.Module):
                      samples=self.area_samples if samples is None else samples)
 
     @torch.no_grad()
-    def measure_occlusion(self, batch_size=8, exact=False):
+    def measure_occlusion(self, batch_size=8, exact=False, when_off=False):
         """Measure the room light's occlusion of every frame whose pose has moved past the
         tolerance since it was last measured (room_occlusion), or of every frame at its pose now
         (`exact`: what the outputs are made with, so that a resumed fit makes the same ones);
-        nothing while it is off."""
-        if not self.occlusion:
+        nothing while it is off, unless `when_off` (the albedo solve's openness reads it)."""
+        if not (self.occlusion or when_off):
             return
         if exact and self._lost_pose is not None:
             self._lost_pose.fill_(float("inf"))

@@ -179,9 +179,11 @@ def calibrate(problem, schedule: Schedule, kinds) -> StepCosts:
         occlusion_seconds = (time.perf_counter() - start) * OCCLUSION_MEASUREMENTS
     elif problem.settings.solve_albedo and problem.settings.albedo_openness == "on":
         timed = torch.arange(min(OPENNESS_TIMED_FRAMES, len(problem.frames)), device=problem.avatar.pose.device)
+        before = problem.avatar.occlusion_state()      # the solve measures these frames at their final poses
         with torch.no_grad():
             problem.avatar.room_occlusion(timed, problem.avatar.posed(timed)[0])
         occlusion_seconds = (time.perf_counter() - start) * len(problem.frames) / max(len(timed), 1)
+        problem.avatar.restore_occlusion_state(before)
     saved = copy.deepcopy(problem.avatar.state_dict())
     saved_occlusion = problem.avatar.occlusion_state()
     by_kind = {stage.kind: stage for stage in schedule}

@@ -272,9 +272,9 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
                          f"better than the last check's {state.validation[-1]['psnr_mean']:.2f} dB")
             save()
     timed = _PartTimer(state.after_stages_seconds)
-    with timed("occlusion"):
-        problem.avatar.measure_occlusion(exact=True)   # at the final poses, in a resumed fit too
     solving = problem.settings.solve_albedo and not problem.known_appearance
+    with timed("occlusion"):   # at the final poses, in a resumed fit too; the solve's openness reads it
+        problem.avatar.measure_occlusion(exact=True, when_off=solving and problem.settings.albedo_openness == "on")
     painting = None
     if solving and (state.albedo_solve is None or state.texture_fill is None):
         with timed("albedo_solve"):
