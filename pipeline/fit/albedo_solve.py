@@ -99,8 +99,9 @@ class _Observations:
     bilinear weights (N, 4), its shading (N, 3) and colour (N, 3); with an environment light,
     also the shading without it (N, 3, exposure gain included), the gain (N, 3) and the
     harmonics at the pixel's shading normal (N, 8); with FitSettings.albedo_facing on, how
-    squarely each pixel sees the surface (N,) in [0, 1] (_facing); with FitSettings.albedo_openness on,
-    how much of the room it sees (N,) in (0, 1] (openness)."""
+    squarely each pixel sees the surface (N,) in [0, 1] (_facing); where the solve weighs openness
+    (solve_avatar_albedo with FitSettings.albedo_openness on), how much of the room it sees (N,) in
+    (0, 1] (openness)."""
     texels: torch.Tensor
     weights: torch.Tensor
     shading: torch.Tensor
@@ -133,7 +134,8 @@ class _Observations:
 
 
 @torch.no_grad()
-def solved_albedo(problem, shadows, batch_size=SOLVE_BATCH, supersample=1, frames=None, solve_environment=True):
+def solved_albedo(problem, shadows, batch_size=SOLVE_BATCH, supersample=1, frames=None, solve_environment=True,
+                  weigh_openness=False):
     """((3, T, T) albedo in [0, 1] that explains the problem's frames best with its avatar's
     current geometry, light and exposure gains, (T, T) bool: texels the frames decide).
 
@@ -152,32 +154,36 @@ def solved_albedo(problem, shadows, batch_size=SOLVE_BATCH, supersample=1, frame
     prior) and returns its area average at the avatar's size: detail finer than a texel then
     explains the pixels instead of reading as their disagreement. `frames` (indices into the fitted
     frames, default all) are the frames read; `solve_environment` False holds the room light as it
-    stands (else it is solved with the albedo, and what it became is not kept)."""
+    stands (else it is solved with the albedo, and what it became is not kept). `weigh_openness`:
+    each pixel weighed by its openness (solve_avatar_albedo's, where FitSettings.albedo_openness is
+    on); without it, as the light's decisions (light_probe.py) score each light, every pixel alike,
+    the hollows' too: a light that shadows them must be judged by them."""
     current = problem.avatar.albedo.detach().clamp(0, 1)
     if supersample > 1:
         finer = torch.nn.functional.interpolate(current[None], scale_factor=supersample, mode="bilinear",
                                                 align_corners=False)[0]
-        albedo, solved, *_ = _solved(problem, shadows, batch_size, finer, solve_environment, frames)
+        albedo, solved, *_ = _solved(problem, shadows, batch_size, finer, solve_environment, frames, weigh_openness)
         albedo = torch.nn.functional.avg_pool2d(albedo[None], supersample)[0]
         solved = torch.nn.functional.max_pool2d(solved[None, None].float(), supersample)[0, 0] > 0
         return albedo, solved
-    return _solved(problem, shadows, batch_size, current, solve_environment, frames)[:2]
+    return _solved(problem, shadows, batch_size, current, solve_environment, frames, weigh_openness)[:2]
 
 
-def _solved(problem, shadows, batch_size, current, solve_environment=True, frames=None):
+def _solved(problem, shadows, batch_size, current, solve_environment=True, frames=None, weigh_openness=False):
     """(albedo, solved, environment coefficients (8, 3) or None when the light has none, the
     reweighted solves' neighbour pull or None when no pixel was usable). In the linear colour model
     the albedo is solved in linear light and returned sRGB-encoded, as the avatar keeps it."""
     linear = problem.avatar.linear_light
     albedo, solved, environment, pull = _solved_in_shading_space(problem, shadows, batch_size,
                                                                  srgb_to_linear(current) if linear else current,
-                                                                 solve_environment, frames)
+                                                                 solve_environment, frames, weigh_openness)
     return (linear_to_srgb(albedo.clamp(0, 1)) if linear else albedo), solved, environment, pull
 
 
-def _solved_in_shading_space(problem, shadows, batch_size, current, solve_environment, frames=None):
+def _solved_in_shading_space(problem, shadows, batch_size, current, solve_environment, frames=None,
+                             weigh_openness=False):
     size = current.shape[-1]
-    seen = _observations(problem, shadows, batch_size, size, frames)
+    seen = _observations(problem, shadows, batch_size, size, frames, weigh_openness)
     environment = problem.avatar.light().environment
     environment = None if environment is None else environment.detach().clone()
     light_solved = environment is not None and solve_environment   # else the observations' shading holds it
@@ -292,18 +298,19 @@ def least_squares_above(normal, rhs, constraints, floor, stiffness=ENVIRONMENT_S
     return x
 
 
-def _observations(problem, shadows, batch_size, size, frames=None):
+def _observations(problem, shadows, batch_size, size, frames=None, weigh_openness=False):
     """The usable pixels of the fitted frames (_Observations; of `frames`, indices into them,
-    default all). In the linear colour model (formats/colour_model.py) the equations hold in
-    linear light: each pixel's colour is its frame's value over the exposure gain, decoded from
-    sRGB, and the shading is rendered without the encoding (the gain is then 1 in the equations).
-    Weighting each equation by the curve's slope at its pixel (residuals in display units) was
-    tried and dropped: the deepest shading, which the model explains least well, then weighs most
-    (phone-like clip: albedo MAE 0.071 against 0.065, docs/fidelity.md)."""
+    default all; with `weigh_openness`, each pixel's openness kept, those with none left out). In
+    the linear colour model (formats/colour_model.py) the equations hold in linear light: each
+    pixel's colour is its frame's value over the exposure gain, decoded from sRGB, and the shading
+    is rendered without the encoding (the gain is then 1 in the equations). Weighting each equation
+    by the curve's slope at its pixel (residuals in display units) was tried and dropped: the
+    deepest shading, which the model explains least well, then weighs most (phone-like clip: albedo
+    MAE 0.071 against 0.065, docs/fidelity.md)."""
     avatar, clip = problem.avatar, problem.clip
     appearance = dataclasses.replace(avatar.appearance(), albedo=torch.ones_like(avatar.albedo))
     facing_on = problem.settings.albedo_facing == "on"
-    openness_on = problem.settings.albedo_openness == "on"
+    openness_on = weigh_openness
     # the least shading (of an albedo of 1) that carries colour, in the shading's units (the encoding is monotonic)
     darkest = srgb_to_linear(torch.tensor(MIN_SHADING)).item() if avatar.linear_light else MIN_SHADING
     parts = []
@@ -590,7 +597,8 @@ def solve_avatar_albedo(problem, shadows, solve_environment=True, frames=None) -
     light_solved = before is not None and solve_environment
     before = before.detach().clone() if light_solved else None
     albedo, solved, environment, pull = _solved(problem, shadows, SOLVE_BATCH, avatar.albedo.detach().clamp(0, 1),
-                                                solve_environment, frames)
+                                                solve_environment, frames,
+                                                weigh_openness=problem.settings.albedo_openness == "on")
     solved = solved & (problem.uv_mask.to(solved.device) > 0)
     change = (albedo - avatar.albedo.clamp(0, 1)).abs().mean(0)[solved]
     avatar.albedo.copy_(torch.where(solved[None], albedo, avatar.albedo))
