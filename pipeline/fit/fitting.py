@@ -273,8 +273,10 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
             save()
     timed = _PartTimer(state.after_stages_seconds)
     solving = problem.settings.solve_albedo and not problem.known_appearance
-    with timed("occlusion"):   # at the final poses, in a resumed fit too; the solve's openness reads it
-        problem.avatar.measure_occlusion(exact=True, when_off=solving and problem.settings.albedo_openness == "on")
+    # the albedo solve's openness weight and the fill's decided texels read it, where either is still to come
+    weighing = solving and problem.settings.albedo_openness == "on" and state.texture_fill is None
+    with timed("occlusion"):   # at the final poses, in a resumed fit too
+        problem.avatar.measure_occlusion(exact=True, when_off=weighing)
     painting = None
     if solving and (state.albedo_solve is None or state.texture_fill is None):
         with timed("albedo_solve"):
