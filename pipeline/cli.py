@@ -110,7 +110,7 @@ def _fit(args):
                  specular=args.specular, light_size=args.light_size, colour_model=args.colour_model,
                  occlusion=args.occlusion,
                  restart_lost_frames=args.restart_lost_frames, albedo_facing=args.albedo_facing,
-                 albedo_openness=args.albedo_openness,
+                 albedo_openness=args.albedo_openness, albedo_passes=args.albedo_passes,
                  light_search=args.light_search, solve_resolution=args.solve_resolution,
                  size_anchor=args.size_anchor, size_tolerance=args.size_tolerance, size_measure=args.size_measure,
                  **({} if args.seed is None else {"seed": args.seed}),
@@ -300,6 +300,9 @@ def build_parser():
                      help="the final albedo solve weighs each pixel by how much of the room its skin sees, so the "
                           "hollows of a fist, lit by the skin around them, leave their colour to the skin they "
                           "join: on (default), or off (docs/fidelity.md)")
+    fit.add_argument("--albedo-passes", type=int, default=None, metavar="N",
+                     help="passes of the albedo's solves and fill after the stages, each from the last one's albedo "
+                          "and room light (default 1; docs/fidelity.md)")
     fit.add_argument("--size-anchor", choices=("initial", "alignment"), default=None,
                      help="the size the size_prior term holds: the hand's where the alignment left it (alignment, "
                           "default; the term silent in the alignment), or the initial estimate's (initial; give it "

@@ -95,6 +95,49 @@ def test_a_finer_solve_reads_the_clips_own_frames_with_the_light_held(tiny_clip,
     assert not calls and np.array_equal(cv2.imread(str(tmp_path / "finer" / av.ALBEDO_FILE)), albedo)
 
 
+
+def test_each_later_albedo_pass_starts_from_the_last_ones_albedo_and_a_resumed_fit_runs_none_again(
+        tiny_clip, tmp_path, monkeypatch, capsys):
+    """FitSettings.albedo_passes 3 with a finer solve: after the first pass's solves and fill come two
+    more, each solving the working frames (the room light with the albedo) then the finer ones (the
+    light held) and filling, each from the albedo the pass before it left; the report and the log
+    hold their figures, the estimate counts them, and the finished fit resumed runs none again."""
+    calls, filled = [], []
+    solve, fill = fitting.solve_avatar_albedo, fitting.fill_avatar_albedo
+
+    def recording_solve(problem, shadows, solve_environment=True, frames=None):
+        calls.append((tuple(problem.clip.images.shape[1:3]), solve_environment,
+                      problem.avatar.albedo.detach().clone()))
+        return solve(problem, shadows, solve_environment, frames)
+
+    def recording_fill(avatar, decided):
+        figures = fill(avatar, decided)
+        filled.append(avatar.albedo.detach().clone())
+        return figures
+
+    monkeypatch.setattr(fitting, "solve_avatar_albedo", recording_solve)
+    monkeypatch.setattr(fitting, "fill_avatar_albedo", recording_fill)
+    options = dict(progress="none", max_steps=2, texture_size=64, batch_size=2, resolution=64, environment="on",
+                   specular="off", light_size="off", solve_resolution=96, albedo_passes=3)
+    report = fitting.fit(tiny_clip, tmp_path / "passes", **options)
+    assert [(size, environment) for size, environment, _ in calls] == [((64, 64), True), ((96, 96), False)] * 3
+    assert len(filled) == 3
+    for later in (1, 2):     # each later pass starts where the fill before it left the albedo
+        assert torch.equal(calls[2 * later][2], filled[later - 1])
+    assert not torch.equal(filled[1], filled[0])
+    passes = report["albedo_passes"]
+    assert len(passes) == 2 and all(p["working"]["solved_fraction"] > 0.1 and p[fitting.FINER_SOLVE]["solved_fraction"]
+                                    > 0.1 and "unseen_fraction" in p["fill"] for p in passes)
+    assert capsys.readouterr().err.count("albedo solved again (pass") == 2
+    settings = FitSettings(**{k: v for k, v in options.items() if k in FitSettings.__dataclass_fields__})
+    costs = {kind: 0.1 for kind in estimate.FALLBACK_COSTS}
+    once = estimate.after_stages_seconds(costs, dataclasses.replace(settings, albedo_passes=1), 4)
+    assert estimate.after_stages_seconds(costs, settings, 4) > once
+    calls.clear()
+    fitting.fit(tiny_clip, tmp_path / "passes", resume=True, **options)
+    assert not calls
+
+
 def test_the_finer_solve_writes_the_texture_it_grew_and_a_resumed_fit_keeps_it(tmp_path):
     """Stages at 64 px with a 64 texture, a 256 px clip: the finer solve grows the texture to 128
     (texel_footprint.py), albedo.png and normal.png are written at that size, the report says so, and

@@ -76,6 +76,8 @@ class FitState:
     light_search: dict | None = None    # light_search.search_light's figures, once it has run (before the light moves)
     size_anchor: float | None = None    # the size the size_prior term holds with size_anchor "alignment", once set
     after_stages_seconds: dict = dataclasses.field(default_factory=dict)   # the work after the stages, by part
+    # the figures of each pass of the albedo's solves and fill after the first (fitting.solve_and_fill_again)
+    albedo_passes: list = dataclasses.field(default_factory=list)
     # {settings rate name ("lr_geometry", ...): factor}: the halvings of rollbacks so far, which the stages after the
     # one that rolled back start from (a rate 10x too high otherwise diverged again at the next stage's first step)
     rate_factors: dict = dataclasses.field(default_factory=dict)

@@ -134,11 +134,13 @@ def after_stages_seconds(seconds, settings, frame_count) -> float:
     if settings.solve_albedo:
         sized = settings.light_size == "auto" and settings.shadows != "off"
         area = AREA_SOLVE_FACTOR if sized else 1.0
-        total += area * SOLVE_FRAME_PASSES * frames + (LIGHT_SOLVE_SECONDS * texels if settings.environment != "off"
-                                                       else 0.0)
-        if finer:
-            total += (area * FINER_FRAME_PASSES * (settings.solve_resolution / settings.resolution) ** 2 * frames
-                      + FINER_TEXTURE_SECONDS * written_texels)
+        light = LIGHT_SOLVE_SECONDS if settings.environment != "off" else 0.0
+        finer_solve = (area * FINER_FRAME_PASSES * (settings.solve_resolution / settings.resolution) ** 2 * frames
+                       + FINER_TEXTURE_SECONDS * written_texels) if finer else 0.0
+        total += area * SOLVE_FRAME_PASSES * frames + light * texels + finer_solve
+        # each later pass (settings.albedo_passes) solves and fills the texture the first one wrote
+        total += (settings.albedo_passes - 1) * (area * SOLVE_FRAME_PASSES * frames + light * written_texels
+                                                 + finer_solve + FILL_SECONDS * written_texels)
         if sized:
             total += LIGHT_SIZE_PROBE_PASSES * per_frame * min(frame_count, PROBE_FRAMES)
     return total

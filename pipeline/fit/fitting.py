@@ -273,12 +273,13 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
             save()
     timed = _PartTimer(state.after_stages_seconds)
     solving = problem.settings.solve_albedo and not problem.known_appearance
+    passes_left = solving and len(state.albedo_passes) < problem.settings.albedo_passes - 1
     # the albedo solve's openness weight and the fill's decided texels read it, where either is still to come
-    weighing = solving and problem.settings.albedo_openness == "on" and state.texture_fill is None
+    weighing = solving and problem.settings.albedo_openness == "on" and (state.texture_fill is None or passes_left)
     with timed("occlusion"):   # at the final poses, in a resumed fit too
         problem.avatar.measure_occlusion(exact=True, when_off=weighing)
     painting = None
-    if solving and (state.albedo_solve is None or state.texture_fill is None):
+    if solving and (state.albedo_solve is None or state.texture_fill is None or passes_left):
         with timed("albedo_solve"):
             painting = _painting_frames(problem, state, reporter)
     if state.light_size is None and problem.settings.light_size == "auto" and solving:
@@ -320,6 +321,29 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
                      f"(seam contrast {state.texture_fill['seam_contrast_before']:.3f} -> "
                      f"{state.texture_fill['seam_contrast_after']:.3f})")
         save()
+    while solving and len(state.albedo_passes) < problem.settings.albedo_passes - 1:
+        with timed("albedo_solve"):
+            state.albedo_passes.append(solve_and_fill_again(problem, state.shadows.on, painting))
+        again = state.albedo_passes[-1]
+        reporter.log(f"albedo solved again (pass {len(state.albedo_passes) + 1} of {problem.settings.albedo_passes}), "
+                     f"from the last pass's albedo and room light: mean change "
+                     f"{(again[FINER_SOLVE] or again['working'])['mean_change']:.3f}")
+        save()
+
+
+def solve_and_fill_again(problem, shadows, frames=None) -> dict:
+    """One more pass of the albedo's solves and fill on the final geometry and light, each starting
+    from the avatar's albedo and room light as the last pass left them (FitSettings.albedo_passes):
+    the albedo and room light from the working frames, the albedo alone from the frames at
+    solve_resolution where they are finer, then the undecided texels filled. The solves pull
+    towards the albedo they start from and alternate the albedo with the room light a few rounds,
+    so one pass from the stages' albedo stops short of where the solves settle. Returns each
+    part's figures."""
+    working = solve_avatar_albedo(problem, shadows, frames=frames)
+    seen = problem.at_resolution(problem.settings.solve_resolution)
+    finer = None if seen is problem else solve_avatar_albedo(seen, shadows, solve_environment=False, frames=frames)
+    fill = fill_avatar_albedo(problem.avatar, decided_texels(seen, frames=frames))
+    return {"working": working, FINER_SOLVE: finer, "fill": fill}
 
 
 def _set_up(sequence, job: FitJob, overrides) -> FitSetup:

@@ -131,7 +131,7 @@ def write_outputs(out, problem, state, held_out=(), estimate=None, validation_fr
         "perceptual_term": problem.perceptual_name, "ambient": avatar.ambient.item(),
         "light_position": avatar.light_position.detach().cpu().tolist(),
         "appearance": "known (frozen)" if problem.known_appearance else "fitted", "texture_fill": state.texture_fill,
-        "albedo_solve": state.albedo_solve,
+        "albedo_solve": state.albedo_solve, "albedo_passes": state.albedo_passes,
         "albedo_solve_left_out": state.solve_left_out,
         "environment": {"requested": settings.environment, "decision": state.environment,
                         "coefficients": environment_light.to_description(avatar.light().environment)},

@@ -58,6 +58,9 @@ class FitSettings:
     # 0.26 dB held out (its noisy batch losses read as a plateau; docs/fit.md)
     plateau_tolerance: float = 0.0
     solve_albedo: bool = True       # the final albedo solved from the frames (albedo_solve.py)
+    # passes of the albedo's solves and fill after the stages (fitting.solve_and_fill_again), each starting from the
+    # last pass's albedo and room light. 1: one pass from the stages' albedo, as before
+    albedo_passes: int = 1
     # the long side, pixels, of the frames the albedo solve reads a second time, the light held
     # (FitProblem.at_resolution, fitting._after_the_stages): the stages fit the shape, poses and light at `resolution`,
     # but the texture can take what finer frames show of the skin (never above the clip's own size). None or 0: the
@@ -185,6 +188,8 @@ class FitSettings:
         if self.solve_resolution and self.solve_resolution < 16:
             raise ValueError(f"solve_resolution must be at least 16 px (0 or None: the working resolution), "
                              f"got {self.solve_resolution}")
+        if not isinstance(self.albedo_passes, int) or self.albedo_passes < 1:
+            raise ValueError(f"albedo_passes must be a whole number from 1, got {self.albedo_passes!r}")
         if not 0.0 < self.final_rate_fraction <= 1.0:
             raise ValueError(f"final_rate_fraction must be in (0, 1] (1: constant rates), "
                              f"got {self.final_rate_fraction}")
@@ -218,6 +223,7 @@ class FitSettings:
         values.setdefault("environment", "off")          # saved before the environment light
         values.setdefault("specular", "off")             # saved before the specular lobe
         values.setdefault("albedo_openness", "off")      # saved before the solve weighed pixels by it
+        values.setdefault("albedo_passes", 1)            # saved before the solves ran more than once
         values.setdefault("light_size", "off")           # saved before the light had a size
         values.setdefault("grow_texture", False)         # saved before the finer solve grew the texture
         values.setdefault("final_rate_fraction", 1.0)    # saved before the learning rates fell
