@@ -338,12 +338,13 @@ def solve_and_fill_again(problem, shadows, frames=None) -> dict:
     solve_resolution where they are finer, then the undecided texels filled. The solves pull
     towards the albedo they start from and alternate the albedo with the room light a few rounds,
     so one pass from the stages' albedo stops short of where the solves settle. Returns each
-    part's figures."""
+    part's figures and the pass's seconds."""
+    started = time.perf_counter()
     working = solve_avatar_albedo(problem, shadows, frames=frames)
     seen = problem.at_resolution(problem.settings.solve_resolution)
     finer = None if seen is problem else solve_avatar_albedo(seen, shadows, solve_environment=False, frames=frames)
     fill = fill_avatar_albedo(problem.avatar, decided_texels(seen, frames=frames))
-    return {"working": working, FINER_SOLVE: finer, "fill": fill}
+    return {"working": working, FINER_SOLVE: finer, "fill": fill, "seconds": time.perf_counter() - started}
 
 
 def _set_up(sequence, job: FitJob, overrides) -> FitSetup:
