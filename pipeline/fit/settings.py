@@ -59,7 +59,9 @@ class FitSettings:
     plateau_tolerance: float = 0.0
     solve_albedo: bool = True       # the final albedo solved from the frames (albedo_solve.py)
     # passes of the albedo's solves and fill after the stages (fitting.solve_and_fill_again), each starting from the
-    # last pass's albedo and room light. 1: one pass from the stages' albedo, as before
+    # last pass's albedo and room light. 1, the default: one pass from the stages' albedo. 2, as a second pass replayed
+    # on 3 seeds of each clip at fda350b: phone-like new poses +0.28-0.39 dB, the albedo 0.26-0.31 dB nearer the
+    # truth, held out level; the demo level; 30-45 s more on 24 frames; not yet timed on 150 (docs/fidelity.md)
     albedo_passes: int = 1
     # the long side, pixels, of the frames the albedo solve reads a second time, the light held
     # (FitProblem.at_resolution, fitting._after_the_stages): the stages fit the shape, poses and light at `resolution`,
@@ -121,7 +123,9 @@ class FitSettings:
     # the truth (one seed; docs/fidelity.md)
     albedo_facing: str = "off"
     # the albedo solve's pixels weighed by how much of the room their surface sees (albedo_solve.openness):
-    # the hollows of a fist, lit by the skin around them more than by the room, leave the albedo to the fill
+    # the hollows of a fist, lit by the skin around them more than by the room, leave the albedo to the fill. On the
+    # demo's 3 seeds the albedo 1.9-2.1 dB nearer the truth, new poses +0.31-0.50 dB, held out -0.54-0.71 dB (the
+    # hollows Cycles darkens; with occlusion "on" as well, within 0.2 dB: docs/fidelity.md)
     albedo_openness: str = "on"
     # frames kept out of the fit and scored as it runs: the best state is written (validation.py). Off until it
     # is shown to help: with `fast` on the demo clip (3 seeds) it left held-out PSNR level (27.76 dB both), joints
