@@ -626,7 +626,6 @@ def test_the_finer_solve_grows_the_texture_to_what_its_frames_hold(fine_clip):
     assert sharpness["grown"] > 2 * sharpness["64"], sharpness
 
 
-
 def test_a_second_pass_keeps_an_albedo_the_first_found(fine_clip):
     """The fit's flow on a clip whose stages work at 64 px with a 64 texture and whose 256 px frames
     show the sharp albedo, drawn by the avatar itself: the albedo solved from the working frames, the

@@ -95,7 +95,6 @@ def test_a_finer_solve_reads_the_clips_own_frames_with_the_light_held(tiny_clip,
     assert not calls and np.array_equal(cv2.imread(str(tmp_path / "finer" / av.ALBEDO_FILE)), albedo)
 
 
-
 def test_each_later_albedo_pass_starts_from_the_last_ones_albedo_and_a_resumed_fit_runs_none_again(
         tiny_clip, tmp_path, monkeypatch, capsys):
     """FitSettings.albedo_passes 3 with a finer solve: after the first pass's solves and fill come two

@@ -337,8 +337,8 @@ def solve_and_fill_again(problem, shadows, frames=None) -> dict:
     the albedo and room light from the working frames, the albedo alone from the frames at
     solve_resolution where they are finer, then the undecided texels filled. The solves pull
     towards the albedo they start from and alternate the albedo with the room light a few rounds,
-    so one pass from the stages' albedo stops short of where the solves settle. Returns each
-    part's figures and the pass's seconds."""
+    and on real frames one pass from the stages' albedo stops short of where further passes go
+    (docs/fidelity.md, "A second albedo pass"). Returns each part's figures and the pass's seconds."""
     started = time.perf_counter()
     working = solve_avatar_albedo(problem, shadows, frames=frames)
     seen = problem.at_resolution(problem.settings.solve_resolution)
