@@ -42,7 +42,8 @@ import torch  # noqa: E402
 from pipeline.evaluate.albedo import albedo_truth, texture_at  # noqa: E402
 from pipeline.evaluate.fidelity import evaluate_fidelity, sharpness_ratio  # noqa: E402
 from pipeline.evaluate.finished_fit import load_finished_fit  # noqa: E402
-from pipeline.fit.albedo_solve import decided_texels, solve_avatar_albedo  # noqa: E402
+from pipeline.fit.albedo_solve import solve_avatar_albedo  # noqa: E402
+from pipeline.fit.fitting import solve_and_fill_again  # noqa: E402
 from pipeline.fit.checkpoint import CHECKPOINT_FILE, FitState, save_checkpoint  # noqa: E402
 from pipeline.fit.light_probe import probe_frames  # noqa: E402
 from pipeline.fit.light_size import decide_light_size  # noqa: E402
@@ -51,7 +52,6 @@ from pipeline.fit.problem import build_problem  # noqa: E402
 from pipeline.fit.schedule import Schedule, StageKind, StageSpec  # noqa: E402
 from pipeline.fit.stage_run import StageRun  # noqa: E402
 from pipeline.fit.texel_footprint import fitting_texture_size, pixel_footprint  # noqa: E402
-from pipeline.fit.texture_fill import fill_avatar_albedo  # noqa: E402
 from pipeline.formats import avatar_folder as av  # noqa: E402
 from pipeline.formats.png_file import write_png  # noqa: E402
 
@@ -87,8 +87,8 @@ def polished(fit, sequence, steps, move_shape=False, seed=0, light_size=False, t
     decision = None
     if light_size:
         decision = decide_light_size(problem, shadows, probe_frames(len(problem.frames), kept=painting))
-    solve_avatar_albedo(problem, shadows, frames=painting)
     if steps:
+        solve_avatar_albedo(problem, shadows, frames=painting)
         kept = problem.frozen
         problem.frozen = tuple(kept) + ("albedo", "normal_map") + (() if move_shape else SHAPE)
         stage = StageSpec(StageKind.JOINT, steps)
@@ -98,12 +98,9 @@ def polished(fit, sequence, steps, move_shape=False, seed=0, light_size=False, t
             run.step()
         problem.frozen = kept
         problem.avatar.measure_occlusion(exact=True)
-        solve_avatar_albedo(problem, shadows, frames=painting)
-    seen = problem.at_resolution(problem.settings.solve_resolution)
-    if seen is not problem:
-        solve_avatar_albedo(seen, shadows, solve_environment=False, frames=painting)
-    fill_avatar_albedo(problem.avatar, decided_texels(seen, frames=painting))
+    solve_and_fill_again(problem, shadows, frames=painting)     # the fit's work after the stages, once more
     seconds = time.perf_counter() - started
+    seen = problem.at_resolution(problem.settings.solve_resolution)
     footprint = pixel_footprint(seen)
     texels = {"pixel_footprint": footprint, "fitting_texture_size": fitting_texture_size(footprint),
               "solve_px": max(seen.clip.height, seen.clip.width)}
