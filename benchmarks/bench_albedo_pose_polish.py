@@ -82,6 +82,7 @@ def polished(fit, sequence, steps, move_shape=False, seed=0, light_size=False, t
     (None without it), {"pixel_footprint", "fitting_texture_size", "solve_px"} of the finer solve's frames."""
     problem, shadows = replay_problem(fit, sequence, texture_size, solve_resolution, fit_options)
     started = time.perf_counter()
+    problem.avatar.occlusion = problem.settings.occlusion_drawn     # as fitting._after_the_stages draws it
     problem.avatar.measure_occlusion(exact=True)
     painting = frames_kept(frames_off_their_silhouettes(problem), len(problem.frames))   # as the fit leaves out
     decision = None

@@ -276,12 +276,14 @@ def build_parser():
                           "in linear light and encodes, as a camera and Blender do, so the bound avatar renders as "
                           "it was fitted; display shades the 8-bit values as they are, as fits before it did "
                           "(docs/fidelity.md)")
-    fit.add_argument("--occlusion", choices=("on", "off"), default=None,
+    fit.add_argument("--occlusion", choices=("on", "after", "off"),   # settings.OCCLUSION_CHOICES (no torch here)
+                     default=None,
                      help="the room light (ambient and environment) held back where the hand itself is in its way, "
-                          "between the fingers and in a closing palm: on, or off (default: every point sees the whole room, "
-                          "HARP's light). On 3 seeds of two clips: frames and joints level, the albedo nearer the "
-                          "truth (a third on the demo), new poses up to 0.7 dB better; costs about 0.5 s per fitted "
-                          "frame (docs/fidelity.md)")
+                          "between the fingers and in a closing palm: on; after (drawn from the albedo solve on, the "
+                          "stages' steps without it: one measurement per frame); or off (default: every point sees "
+                          "the whole room, HARP's light). on, on 3 seeds of two clips: frames and joints level, the "
+                          "albedo nearer the truth, new poses up to 0.8 dB better; costs about 1 s per fitted frame "
+                          "(docs/fidelity.md)")
     fit.add_argument("--restart-lost-frames", choices=("on", "off"), default=None,
                      help="frames the alignment left off their silhouettes (a hand the detector turned over) started "
                           "again from their neighbours' poses: on, or off (default: on a phone-like clip it gained "

@@ -73,6 +73,16 @@ def test_harp_fit_passes_its_seed_to_the_fit_and_leaves_the_default_otherwise(mo
     assert seen[0]["seed"] == 3 and "seed" not in seen[1]
 
 
+def test_harp_fit_offers_the_occlusions_settings_and_passes_the_one_chosen(monkeypatch):
+    """--occlusion's choices are FitSettings' (written out in the command, which does not import torch)."""
+    from pipeline.fit.settings import OCCLUSION_CHOICES
+
+    fit_parser = build_parser()._subparsers._group_actions[0].choices["fit"]
+    assert tuple(next(a for a in fit_parser._actions if a.dest == "occlusion").choices) == OCCLUSION_CHOICES
+    seen = _fit_options(monkeypatch, ["fit", "seq", "--out", "a", "--occlusion", "after"], ["fit", "seq", "--out", "a"])
+    assert seen[0]["occlusion"] == "after" and seen[1]["occlusion"] is None     # None: the preset's
+
+
 def test_harp_fit_sets_term_weights_by_name_over_the_defaults(monkeypatch, capsys):
     from pipeline.fit.energy_terms import default_weights
 

@@ -90,6 +90,42 @@ def test_held_out_evaluation_fits_pose_and_light_only(held_out_fit, tiny_clip, m
     assert seen and all(seen)
 
 
+def test_the_occlusion_after_the_stages_shades_the_finished_avatar_but_no_stage_step(held_out_fit, tiny_clip, tmp_path,
+                                                                                      monkeypatch):
+    """FitSettings.occlusion "after": every gradient step of the stages shades without the room
+    light's occlusion, the albedo solve with it, each fitted frame measured once (at its final
+    pose); the avatar says it is drawn with it, and its held-out frames are refined and scored
+    with it."""
+    from pipeline.fit import avatar as avatar_module
+    steps_with_occlusion, solves_with_occlusion, measured = [], [], []
+    step, solve, measure = stage_run.StageRun.step, fitting.solve_avatar_albedo, avatar_module.hand_lost_light
+
+    def recording_step(run):
+        steps_with_occlusion.append(run.problem.avatar.occlusion)
+        return step(run)
+
+    def recording_solve(problem, *args, **kwargs):
+        batch = torch.arange(len(problem.frames))
+        solves_with_occlusion.append(problem.avatar.light(False, batch, problem.avatar.posed(batch)[0]).occlusion
+                                     is not None)
+        return solve(problem, *args, **kwargs)
+
+    monkeypatch.setattr(stage_run.StageRun, "step", recording_step)
+    monkeypatch.setattr(fitting, "solve_avatar_albedo", recording_solve)
+    monkeypatch.setattr(avatar_module, "hand_lost_light", lambda vertices, *a: measured.append(len(vertices))
+                        or measure(vertices, *a))
+    out = tmp_path / "after"
+    report = fitting.fit(tiny_clip, out, hold_out_every=3, occlusion="after", **FIT_OPTIONS)
+    assert steps_with_occlusion and not any(steps_with_occlusion)
+    assert solves_with_occlusion and all(solves_with_occlusion)
+    assert sum(measured) == len(report["frames"]) == report["occlusion"]["frame_measurements"]
+    assert av.read_avatar_json(out)["light"]["occlusion"] is True
+    measured.clear()
+    result = held_out.evaluate_held_out(out, tiny_clip, steps=2, device="cpu")
+    assert result.avatar.occlusion and sum(measured) >= len(report["held_out_frames"])
+    assert av.read_avatar_json(held_out_fit[0])["light"]["occlusion"] is False      # the default: off
+
+
 def matrix(axis_angle):
     """The rotation matrix of an axis-angle vector (one rotation has two vectors at 180 degrees)."""
     return Rotation.from_rotvec(np.asarray(axis_angle, dtype=np.float64)).as_matrix()

@@ -110,6 +110,7 @@ def evaluate_held_out(fit_folder, sequence, frames=None, steps=300, device=None,
         settings = dataclasses.replace(settings, stage_factors={**settings.stage_factors, **stage_factors})
     problem = build_problem(Path(sequence), settings, frames, device,
                             shared={name: saved.avatar[name] for name in FROZEN + LIGHT + SWITCHES}, frozen=FROZEN)
+    problem.avatar.occlusion = settings.occlusion_drawn      # the finished avatar's shading
     shadows = bool(saved.state.shadows.on)
     schedule = Schedule((StageSpec(StageKind.HELD_OUT, steps),))
 

@@ -44,8 +44,9 @@ SPEED_MEMORY_SECONDS = 60.0  # ...and follows a change (another process starting
 # a fit with the room light's occlusion measures every frame's about this many times: at the start of the two
 # shaded stages, at the end, and as poses move (the phone-like clip's `fast` fit: 120 measurements of 24 frames)
 OCCLUSION_MEASUREMENTS = 5
-# without it, the albedo solve that weighs its pixels by their openness (FitSettings.albedo_openness) measures
-# every frame's once, timed on this many frames
+# without it in the stages, the occlusion drawn after them (FitSettings.occlusion "after") or the albedo solve that
+# weighs its pixels by their openness (FitSettings.albedo_openness) measures every frame's once, timed on this many
+# frames
 OPENNESS_TIMED_FRAMES = 4
 # The work after the stages, fitted to report.json's after_stages_seconds and output_seconds (docs/performance.md,
 # "The work after the stages"): every fitted frame rendered this many times at a joint step's cost per frame by the
@@ -171,15 +172,15 @@ def calibrate(problem, schedule: Schedule, kinds) -> StepCosts:
     avatar's parameters come back bit-for-bit and the fit's generator is not touched. The room
     light's occlusion (Avatar.room_occlusion), when on, is measured for every frame first, timed on
     its own: the steps then time what they cost while the poses stay within its tolerance, and the
-    estimate counts OCCLUSION_MEASUREMENTS such measurements of every frame. Without it, an albedo
-    solve that weighs its pixels by their openness measures every frame's once: timed on
-    OPENNESS_TIMED_FRAMES frames."""
+    estimate counts OCCLUSION_MEASUREMENTS such measurements of every frame. Without it, the
+    occlusion drawn after the stages (FitSettings.occlusion "after") or an albedo solve that weighs
+    its pixels by their openness measures every frame's once: timed on OPENNESS_TIMED_FRAMES frames."""
     start = time.perf_counter()
     occlusion_seconds = 0.0
     if problem.avatar.occlusion:
         problem.avatar.measure_occlusion()
         occlusion_seconds = (time.perf_counter() - start) * OCCLUSION_MEASUREMENTS
-    elif problem.settings.solve_albedo and problem.settings.albedo_openness == "on":
+    elif problem.settings.occlusion_drawn or (problem.settings.solve_albedo and problem.settings.albedo_openness == "on"):
         timed = torch.arange(min(OPENNESS_TIMED_FRAMES, len(problem.frames)), device=problem.avatar.pose.device)
         before = problem.avatar.occlusion_state()      # the solve measures these frames at their final poses
         with torch.no_grad():

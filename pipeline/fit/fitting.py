@@ -276,6 +276,7 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
     passes_left = solving and len(state.albedo_passes) < problem.settings.albedo_passes - 1
     # the albedo solve's openness weight and the fill's decided texels read it, where either is still to come
     weighing = solving and problem.settings.albedo_openness == "on" and (state.texture_fill is None or passes_left)
+    problem.avatar.occlusion = problem.settings.occlusion_drawn   # `after` switches it on here
     with timed("occlusion"):   # at the final poses, in a resumed fit too
         problem.avatar.measure_occlusion(exact=True, when_off=weighing)
     painting = None

@@ -187,7 +187,7 @@ def build_problem(sequence, settings: FitSettings, frames, device=None, shared=N
             avatar.exposure.copy_(exposure_measured[0])
     avatar.switch_environment(settings.environment != "off")   # `auto`: fitted until fitting.py decides
     avatar.switch_specular(settings.specular != "off")         # likewise
-    avatar.occlusion = settings.occlusion == "on"
+    avatar.occlusion = settings.occlusion_in_stages   # `after`: switched on by fitting._after_the_stages
     _take_shared(avatar, shared)
     frozen = tuple(frozen) + (() if settings.exposure == "on" else ("exposure",)) \
         + (("environment",) if settings.environment == "off" else ()) \

@@ -12,6 +12,8 @@ from .schedule import Schedule, StageKind
 
 # the default energy weights, one per registered term (energy_terms.py: Table C.1 and ours)
 WEIGHTS = default_weights()
+# FitSettings.occlusion: in the stages and after them, after them only, not at all
+OCCLUSION_CHOICES = ("on", "after", "off")
 
 
 # settings that earlier versions stored; the step costs are now measured (estimate.py)
@@ -103,7 +105,11 @@ class FitSettings:
     # (occlusion.bounce_radiance), on 3 seeds of the demo and the phone-like clip: the frames and joints level, the
     # albedo nearer the truth on 5 of 6 (a third on the demo), new poses +0.4-0.7 dB on 5; off for its cost (5
     # measurements per fitted frame, 0.19 s each, about half that since the depth maps draw the unsubdivided
-    # surface: about 70 s on a 150-frame clip) and a phone-like seed within the spread (docs/fidelity.md)
+    # surface: about 70 s on a 150-frame clip) and a phone-like seed within the spread (docs/fidelity.md).
+    # "after": drawn from the work after the stages on (the albedo solve, the light's decisions, the outputs and
+    # the held-out frames' evaluation), the stages' gradient steps shading without it: one measurement per frame,
+    # at the final poses, the one the openness weight already takes (docs/fidelity.md, "The occlusion after the
+    # stages")
     occlusion: str = "off"
     # frames the alignment left off their silhouettes started again from their neighbours (lost_frames.py):
     # "on" | "off", the default: on the phone-like clip (2 seeds) the fitted and held-out frames gained 0.4-1.3 dB
@@ -166,8 +172,8 @@ class FitSettings:
 
     def __post_init__(self):
         colour_model.checked(self.colour_model)
-        if self.occlusion not in ("on", "off"):
-            raise ValueError(f"occlusion must be 'on' or 'off', got {self.occlusion!r}")
+        if self.occlusion not in OCCLUSION_CHOICES:
+            raise ValueError(f"occlusion must be one of {', '.join(OCCLUSION_CHOICES)}, got {self.occlusion!r}")
         if self.restart_lost_frames not in ("on", "off"):
             raise ValueError(f"restart_lost_frames must be 'on' or 'off', got {self.restart_lost_frames!r}")
         if self.light_size not in ("auto", "off"):
@@ -208,6 +214,17 @@ class FitSettings:
             if unknown:
                 raise ValueError(f"stage_factors[{term!r}]: no stage named {unknown[0]!r}; "
                                  f"the stages: {', '.join(sorted(stages))}")
+
+    @property
+    def occlusion_in_stages(self) -> bool:
+        """Whether the stages' gradient steps shade with the room light's occlusion."""
+        return self.occlusion == "on"
+
+    @property
+    def occlusion_drawn(self) -> bool:
+        """Whether the finished avatar is shaded with it (the work after the stages, the outputs,
+        the evaluation, the renders of the avatar)."""
+        return self.occlusion != "off"
 
     def schedule(self) -> Schedule:
         """The planned schedule: the alignment (ours: it widens the basin the three stages start
