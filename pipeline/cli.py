@@ -279,10 +279,10 @@ def build_parser():
     fit.add_argument("--occlusion", choices=("on", "after", "off"),   # settings.OCCLUSION_CHOICES (no torch here)
                      default=None,
                      help="the room light (ambient and environment) held back where the hand itself is in its way, "
-                          "between the fingers and in a closing palm: after (drawn from the albedo solve on, the "
-                          "stages' steps without it; one measurement per frame), on (the stages' steps too: 4-6 "
-                          "measurements per frame, scored as after), or off (default: every point sees the whole "
-                          "room, HARP's light). after against off, 3 seeds of two clips: held out +0.11-0.52 dB, new poses "
+                          "between the fingers and in a closing palm: after (default: drawn from the albedo solve "
+                          "on, the stages' steps without it; one measurement per frame), on (the stages' steps too: "
+                          "4-6 measurements per frame, scored as after), or off (every point sees the whole room, "
+                          "HARP's light). after against off, 3 seeds of two clips: held out +0.11-0.52 dB, new poses "
                           "+0.23-0.38 dB, the albedo nearer the truth (docs/fidelity.md)")
     fit.add_argument("--restart-lost-frames", choices=("on", "off"), default=None,
                      help="frames the alignment left off their silhouettes (a hand the detector turned over) started "
@@ -304,8 +304,9 @@ def build_parser():
                           "join: on (default), or off (docs/fidelity.md)")
     fit.add_argument("--albedo-passes", type=int, default=None, metavar="N",
                      help="passes of the albedo's solves and fill after the stages, each from the last one's albedo "
-                          "and room light (default 1; 2 on a phone-like clip's 3 seeds: new poses +0.28-0.39 dB, the "
-                          "demo level, about 30-45 s more on 24 frames: docs/fidelity.md)")
+                          "and room light (default 2, preview 1; 2 against 1 on a phone-like clip's 3 seeds: new poses "
+                          "+0.22-0.29 dB, the demo +0.05; about 40 s more on 24 frames, 34 s on 150 on one core: "
+                          "docs/fidelity.md)")
     fit.add_argument("--size-anchor", choices=("initial", "alignment"), default=None,
                      help="the size the size_prior term holds: the hand's where the alignment left it (alignment, "
                           "default; the term silent in the alignment), or the initial estimate's (initial; give it "

@@ -123,7 +123,7 @@ def test_the_occlusion_after_the_stages_shades_the_finished_avatar_but_no_stage_
     measured.clear()
     result = held_out.evaluate_held_out(out, tiny_clip, steps=2, device="cpu")
     assert result.avatar.occlusion and sum(measured) >= len(report["held_out_frames"])
-    assert av.read_avatar_json(held_out_fit[0])["light"]["occlusion"] is False      # the default: off
+    assert av.read_avatar_json(held_out_fit[0])["light"]["occlusion"] is True       # the default: after
 
 
 def matrix(axis_angle):

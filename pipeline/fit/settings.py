@@ -61,10 +61,11 @@ class FitSettings:
     plateau_tolerance: float = 0.0
     solve_albedo: bool = True       # the final albedo solved from the frames (albedo_solve.py)
     # passes of the albedo's solves and fill after the stages (fitting.solve_and_fill_again), each starting from the
-    # last pass's albedo and room light. 1, the default: one pass from the stages' albedo. 2, as a second pass replayed
-    # on 3 seeds of each clip at fda350b: phone-like new poses +0.28-0.39 dB, the albedo 0.26-0.31 dB nearer the
-    # truth, held out level; the demo level; 30-45 s more on 24 frames; not yet timed on 150 (docs/fidelity.md)
-    albedo_passes: int = 1
+    # last pass's albedo and room light. 2, the default: as a second pass replayed on 3 seeds of each clip on fits with
+    # the occlusion drawn after the stages (87750ff): phone-like new poses +0.22-0.29 dB, the albedo 0.17-0.27 dB nearer
+    # the truth; the demo +0.05-0.06; 39-43 s more on 24 frames, 34 s on the 150-frame sun clip on one core
+    # (docs/fidelity.md). 1: one pass from the stages' albedo (`preview`)
+    albedo_passes: int = 2
     # the long side, pixels, of the frames the albedo solve reads a second time, the light held
     # (FitProblem.at_resolution, fitting._after_the_stages): the stages fit the shape, poses and light at `resolution`,
     # but the texture can take what finer frames show of the skin (never above the clip's own size). None or 0: the
@@ -101,16 +102,15 @@ class FitSettings:
     # docs/fidelity.md, "Shading in linear light")
     colour_model: str = "linear"
     # the room light (ambient and environment) held back where the hand itself stands in its way (render/occlusion.py):
-    # "on" (in the stages' steps and after them), "after" (drawn from the work after the stages on: the
+    # "on" (in the stages' steps and after them), "after", the default (drawn from the work after the stages on: the
     # albedo solve, the light's decisions, the outputs and the held-out frames' evaluation, the stages' steps shading
-    # without it; one measurement per frame at the final poses, the one the openness weight takes anyway) | "off",
-    # the default until the test suite has run with "after" (every point sees the whole room, HARP's light). "after"
-    # against "off", whole fits at 87750ff, 3 seeds each:
+    # without it; one measurement per frame at the final poses, the one the openness weight takes anyway) | "off"
+    # (every point sees the whole room, HARP's light). "after" against "off", whole fits at 87750ff, 3 seeds each:
     # the phone-like clip held out +0.11-0.28 dB, new poses +0.25-0.38, the albedo 0.28-0.46 dB nearer the truth;
     # the demo held out +0.37-0.52 (back within 0.2 dB of the albedo solved from every pixel alike), new poses
     # +0.23-0.32; "on" scored as "after" for 4-6 measurements per frame (docs/fidelity.md, "The occlusion drawn
     # after the stages")
-    occlusion: str = "off"
+    occlusion: str = "after"
     # frames the alignment left off their silhouettes started again from their neighbours (lost_frames.py):
     # "on" | "off", the default: on the phone-like clip (2 seeds) the fitted and held-out frames gained 0.4-1.3 dB
     # and the albedo came nearer the truth, but the hand's size moved (surface 0.68 -> 2.31 and 0.73 -> 0.87 mm,
@@ -272,11 +272,11 @@ class FitSettings:
 PRESETS = {
     # a first look in under 2 minutes: 160 px, batches of 10 (each frame's pose visited about as often as in fast's
     # joint stage), a short alignment and joint stage, no appearance stage, and HARP's light alone (no environment
-    # light, no specular lobe, a point light: none is fitted nor decided, so the albedo is solved once); on a 150-frame 448 px
-    # clip with 2 threads, 102 s: joint error 5% and L1 9% above fast's (docs/performance.md, "A first avatar in
-    # two minutes")
+    # light, no specular lobe, a point light: none is fitted nor decided, so the albedo is solved once, in one pass);
+    # on a 150-frame 448 px clip with 2 threads, 102 s: joint error 5% and L1 9% above fast's (docs/performance.md,
+    # "A first avatar in two minutes")
     "preview": dict(resolution=160, texture_size=256, batch_size=10, steps=(20, 170, 0), align_steps=50,
-                    environment="off", specular="off", light_size="off"),
+                    environment="off", specular="off", light_size="off", albedo_passes=1),
     # 100 appearance steps, not 200: the albedo is solved from the frames after the stages, and from the joint stage's
     # end of 3 phone-like and 3 demo fits the second hundred moved held-out PSNR by -0.07 to +0.22 dB and new poses by
     # -0.03 to +0.03 (the seeds' spread 0.2-0.5 dB), for 45-52 s (docs/performance.md, "The appearance stage halved")
