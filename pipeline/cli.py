@@ -170,7 +170,7 @@ def _import_video(args):
     import_video(args.video, args.masks, args.out, size=args.size, K=parse_intrinsics(args.K) if args.K else None,
                  fov_deg=args.fov, side=args.side, fps=args.fps, margin=args.margin, max_frames=args.max_frames,
                  overwrite=args.overwrite, warn=lambda message: print(message, file=sys.stderr), crop=args.crop,
-                 window=args.window)
+                 window=args.window, workers=args.workers)
 
 
 def _init(args):
@@ -483,6 +483,9 @@ def build_parser():
                             "that a forearm reaching to the frame's edge does not make it small (the crop cuts the "
                             "forearm); mask: the whole mask")
     video.add_argument("--max-frames", type=int, default=None, help="import only the first N frames")
+    video.add_argument("--workers", type=int, default=None, metavar="N",
+                       help="processes that make the masks from the footage at once (default: one per core; "
+                            "each uses one core)")
     video.add_argument("--overwrite", action="store_true", help="replace the sequence in --out")
     video.set_defaults(run=_import_video)
 

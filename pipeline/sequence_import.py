@@ -6,7 +6,8 @@ images (.png, .jpg, .jpeg, .bmp, .tif, .tiff, .webp; taken in natural name order
 comes before 10.png). They are paired by order. Masks are binarised at half intensity (the
 brightest channel >= 128 is hand), so lossy mask videos work. Without masks the import makes
 its own (detection/hand_masks.py: MediaPipe's landmarks seed OpenCV's GrabCut), at a working
-scale of at most AUTO_MASK_SIZE pixels; masks a user gives always win.
+scale of at most AUTO_MASK_SIZE pixels, a process per core at once (`workers`,
+detection/mask_workers.py); masks a user gives always win.
 
 What the window holds (`window`): the hand ("hand", default: the mask's box cut to MediaPipe's
 landmarks, grown by HAND_BOX_GROWTH, so that a forearm reaching to the frame's edge does not
@@ -349,7 +350,7 @@ class AutoMasks:
 
     label, limit, stored_frames = "masks (made from the footage)", None, None
 
-    def __init__(self, frames, side, log=print):
+    def __init__(self, frames, side, log=print, workers=None):
         from .detection.hand_masks import screened_masks
         from .detection.mediapipe_hands import detect_keypoints
 
@@ -363,7 +364,7 @@ class AutoMasks:
             if (number + 1) % max(1, len(small) // 10) == 0 or number + 1 == len(small):
                 log(f"masks: {number + 1}/{len(small)} frames")
 
-        masks, self.screen = screened_masks(small, keypoints, frames.fps or DEFAULT_FPS, progress)
+        masks, self.screen = screened_masks(small, keypoints, frames.fps or DEFAULT_FPS, progress, workers=workers)
         for line in self.screen.lines(seq.frame_ranges, side, len(small)):
             log(line)
         self.masks = [np.packbits(mask) for mask in masks]
@@ -451,7 +452,7 @@ def _side_of(small, side, log):
 
 
 def import_video(video, masks, out, size=DEFAULT_SIZE, K=None, fov_deg=None, side="auto", fps=None, margin=0.15,
-                 max_frames=None, overwrite=False, log=print, warn=None, crop="auto", window="hand"):
+                 max_frames=None, overwrite=False, log=print, warn=None, crop="auto", window="hand", workers=None):
     """Write the sequence folder `out` from `video` and `masks` (files or image folders; None:
     made from the frames); returns its SequenceInfo. See the module docstring."""
     warn = warn or log
@@ -469,6 +470,8 @@ def import_video(video, masks, out, size=DEFAULT_SIZE, K=None, fov_deg=None, sid
         raise ImportVideoError(f"--crop must be one of {', '.join(CROPS)}, got {crop!r}")
     if window not in WINDOWS:
         raise ImportVideoError(f"--window must be one of {', '.join(WINDOWS)}, got {window!r}")
+    if workers is not None and workers < 1:
+        raise ImportVideoError(f"the mask workers must be at least 1, got {workers}")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ImportVideoError(f"output {out} exists and is not a folder")
@@ -477,7 +480,7 @@ def import_video(video, masks, out, size=DEFAULT_SIZE, K=None, fov_deg=None, sid
     frames = FrameSource(video, "video", limit=max_frames)
     if masks is None:
         try:
-            mask_source = AutoMasks(frames, side, log)
+            mask_source = AutoMasks(frames, side, log, workers)
         except ValueError as error:   # no hand in the footage
             raise ImportVideoError(f"no masks given, and none could be made: {error}") from None
     else:

@@ -23,8 +23,9 @@ from __future__ import annotations
 
 import dataclasses
 
-import cv2
 import numpy as np
+
+from .mask_growth import grown
 
 MAX_GAP_SECONDS = 0.2          # missing detections interpolated across at most this long a gap ...
 STILL_HAND = 0.3               # ... or across any gap whose ends put the wrist this close (palm lengths)
@@ -101,6 +102,5 @@ def landmarks_in_mask(mask, points):
     inside = (cols >= 0) & (cols < width) & (rows >= 0) & (rows < height)
     if not inside.any():
         return 1.0
-    reach = max(1, int(round(LANDMARK_REACH * palm)))
-    grown = cv2.dilate(mask.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1,) * 2))
-    return float(grown[rows[inside], cols[inside]].astype(bool).mean())
+    near = grown(mask, LANDMARK_REACH * palm)
+    return float(near[rows[inside], cols[inside]].astype(bool).mean())

@@ -30,6 +30,7 @@ import numpy as np
 from scipy.ndimage import label as ndimage_label
 
 from .footage_screen import MIN_LANDMARKS_IN_MASK, FootageScreen, frames_without_hand, landmarks_in_mask
+from .mask_growth import grown
 
 FINGERS = ((0, 1, 2, 3, 4), (0, 5, 6, 7, 8), (9, 10, 11, 12), (13, 14, 15, 16), (0, 17, 18, 19, 20))
 PALM = (0, 1, 5, 9, 13, 17)
@@ -61,14 +62,14 @@ def frame_mask(rgb, points, other_hand=None, refine=True):
     probable = np.zeros((height, width), np.uint8)
     hull = cv2.convexHull(np.round(points).astype(np.int32))
     cv2.fillConvexPoly(probable, hull, 1)
-    probable = cv2.dilate(probable, _disc(HULL_GROWTH * palm))
+    probable = grown(probable, HULL_GROWTH * palm)
     axis = points[0] - points[9]
     axis /= max(np.linalg.norm(axis), 1e-9)
     across = np.array([-axis[1], axis[0]]) * FOREARM_WIDTH * palm / 2
     end = points[0] + axis * FOREARM_LENGTH * palm
     corridor = np.round([points[0] + across, points[0] - across, end - across, end + across]).astype(np.int32)
     cv2.fillConvexPoly(probable, corridor, 1)
-    ring = cv2.dilate(probable, _disc(RING * palm))
+    ring = grown(probable, RING * palm)
     seeds[ring > 0] = cv2.GC_PR_BGD
     seeds[probable > 0] = cv2.GC_PR_FGD
     thickness = max(1, int(round(BONE_WIDTH * palm)))
@@ -189,26 +190,41 @@ def _clean(hand, centre):
     return part | (~np.isin(background, list(outer)) & ~part)
 
 
-def screened_masks(frames, keypoints, fps, on_frame=None, refine=True):
+def screened_masks(frames, keypoints, fps, on_frame=None, refine=True, workers=1):
     """([(H, W) bool mask per frame], FootageScreen) of RGB frames (a list) and their Keypoints2D:
-    frames the screen names (footage_screen.py) get an empty mask; `on_frame(number)` after each;
-    `refine`: frame_mask's."""
+    frames the screen names (footage_screen.py) get an empty mask; `on_frame(number)` after each
+    (in the frames' order); `refine`: frame_mask's. `workers` > 1: the frames' masks are made by
+    that many processes at once (mask_workers.py; each frame's mask is the same either way)."""
+    from .mask_workers import each_frame
+
     without_hand = frames_without_hand(keypoints.detected, fps, keypoints.points)
     other = keypoints.other_hand
     both = [] if other is None else [int(i) for i in np.flatnonzero(np.isfinite(other).all(axis=(1, 2)))]
     screen = FootageScreen(no_hand=[int(i) for i in np.flatnonzero(without_hand)], both_hands=both)
+    jobs = [(rgb, points, None if other is None else other[number], refine)
+            for number, (rgb, points) in enumerate(zip(frames, keypoints.points)) if not without_hand[number]]
+    made = each_frame(_screened_frame_mask, jobs, workers)
     masks = []
-    for number, (rgb, points) in enumerate(zip(frames, keypoints.points)):
+    for number, rgb in enumerate(frames):
         mask = np.zeros(rgb.shape[:2], bool)
         if not without_hand[number]:
-            mask = frame_mask(rgb, points, None if other is None else other[number], refine)
-            if landmarks_in_mask(mask, points) < MIN_LANDMARKS_IN_MASK:
+            mask, agrees = next(made)
+            if not agrees:
                 screen.mask_disagrees.append(number)
-                mask = np.zeros(rgb.shape[:2], bool)
         masks.append(mask)
         if on_frame is not None:
             on_frame(number)
     return masks, screen
+
+
+def _screened_frame_mask(job):
+    """(frame_mask of one frame's job (rgb, points, other hand, refine), or an empty mask where
+    fewer than MIN_LANDMARKS_IN_MASK of the landmarks lie in it; whether they did)."""
+    rgb, points, other_hand, refine = job
+    mask = frame_mask(rgb, points, other_hand, refine)
+    if landmarks_in_mask(mask, points) < MIN_LANDMARKS_IN_MASK:
+        return np.zeros(rgb.shape[:2], bool), False
+    return mask, True
 
 
 def clip_masks(frames, side, detector=None, fps=30.0, refine=True):
