@@ -19,13 +19,17 @@ import sys
 WAIT_POLICY = "PASSIVE"
 
 
+def available_cores() -> int:
+    """The cores this process may run on (at least one)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:       # not on Linux
+        return os.cpu_count() or 1
+
+
 def default_threads() -> int:
     """Half the cores this process may run on (at least one)."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:       # not on Linux
-        cores = os.cpu_count() or 1
-    return max(1, cores // 2)
+    return max(1, available_cores() // 2)
 
 
 def configure_threads(threads: int | None = None) -> dict:

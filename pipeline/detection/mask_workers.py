@@ -2,28 +2,21 @@
 
 A mask made from the footage (hand_masks.frame_mask) is OpenCV's GrabCut and a few image
 operations, about a second of one core per 640 px frame and independent of every other frame's:
-a 16-second phone clip (493 frames) took a quarter of an hour of one core on a 2-core machine
-whose other core sat idle. GrabCut runs on one thread, so the frames are shared between processes
-instead. They are spawned, not forked: the importing process has MediaPipe's threads running (and
-torch's, in the Blender add-on's worker), which a forked child would inherit in whatever state
-they were. Each worker runs OpenCV single-threaded, so N workers take N cores.
+a 16-second phone clip (493 frames) took 11 minutes of one core on a 2-core machine whose other
+core sat idle (docs/real_footage.md). GrabCut runs on one thread, so the frames are shared
+between processes instead. They are spawned, not forked: the importing process has MediaPipe's
+threads running, which a forked child would inherit in whatever state they were. Each worker
+runs OpenCV single-threaded, so N workers take N cores.
 """
 from __future__ import annotations
 
 import multiprocessing
-import os
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
+from ..threads import available_cores
+
 MIN_JOBS_PER_WORKER = 4     # below this many frames a worker's start (about a second) is not worth it
-
-
-def available_cores() -> int:
-    """The cores this process may run on (at least one)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:       # not on Linux
-        return os.cpu_count() or 1
 
 
 def each_frame(function, jobs, workers=1):
