@@ -110,7 +110,7 @@ def _fit(args):
                  specular=args.specular, light_size=args.light_size, colour_model=args.colour_model,
                  occlusion=args.occlusion,
                  restart_lost_frames=args.restart_lost_frames, albedo_facing=args.albedo_facing,
-                 albedo_openness=args.albedo_openness, albedo_passes=args.albedo_passes,
+                 albedo_openness=args.albedo_openness, albedo_passes=args.albedo_passes, albedo_fill=args.albedo_fill,
                  light_search=args.light_search, solve_resolution=args.solve_resolution,
                  size_anchor=args.size_anchor, size_tolerance=args.size_tolerance, size_measure=args.size_measure,
                  **({} if args.seed is None else {"seed": args.seed}),
@@ -307,6 +307,12 @@ def build_parser():
                           "and room light (default 2, preview 1; 2 against 1 on a phone-like clip's 3 seeds: new poses "
                           "+0.22-0.29 dB, the demo +0.05; about 40 s more on 24 frames, 34 s on 150 on one core: "
                           "docs/fidelity.md)")
+    fit.add_argument("--albedo-fill", choices=("decided", "feathered"), default=None,   # settings.ALBEDO_FILL_CHOICES
+                     help="what the fill keeps of the solved albedo: every texel the frames decide, as solved (decided, "
+                          "default), or each texel as far as pixels that see its skin squarely decide it, so a side the "
+                          "clip only showed edge-on blends into the fill (feathered: on a real clip that never shows the "
+                          "palm it removes a dark line along the hand's side; on a synthetic one it cost new poses "
+                          "0.2-0.5 dB; docs/real_footage.md)")
     fit.add_argument("--size-anchor", choices=("initial", "alignment"), default=None,
                      help="the size the size_prior term holds: the hand's where the alignment left it (alignment, "
                           "default; the term silent in the alignment), or the initial estimate's (initial; give it "

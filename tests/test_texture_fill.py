@@ -109,3 +109,75 @@ def test_texels_shown_only_at_the_silhouette_are_filled_not_left_at_the_start(tm
     # and the filled rim is nearer the truth than the starting colour was
     assert (albedo - truth).abs().mean(0)[rim].mean() < 0.7 * (start - truth).abs().mean(0)[rim].mean()
     assert figures["unseen_fraction"] > 1 - float(decided.sum() / inside.sum()) - 1e-6
+
+
+def test_a_partly_trusted_texel_is_pulled_to_its_own_value_as_far_as_it_is_trusted():
+    """Three texels in a row, the ends kept at 0 and 1, the middle one solved at v with trust t:
+    it minimises (x - 0)^2 + (x - 1)^2 + w (x - v)^2 + SKIN_PRIOR (x - m)^2, w = t / (1 - t), m the
+    median of the trusted-at-all texels (0.5 here): x = (1 + w v + SKIN_PRIOR m) / (2 + w + SKIN_PRIOR)."""
+    inside = np.zeros((1, 3), bool)
+    inside[:] = True
+    graph = tf.TexelGraph(inside, np.arange(3).reshape(1, 3), np.array([[0, 1], [1, 2]]), np.zeros((0, 2), np.int64))
+    texture = np.array([[[0.0], [0.9], [1.0]]])
+    for t in (0.0, 0.25, 0.5, 0.9):
+        trust = np.array([[1.0, t, 1.0]])
+        w, v = t / (1 - t), 0.9
+        median = np.median([0.0, 0.9, 1.0] if t > 0 else [0.0, 1.0])
+        expected = (1 + w * v + tf.SKIN_PRIOR * median) / (2 + w + tf.SKIN_PRIOR)
+        np.testing.assert_allclose(tf.fill_unseen(texture, trust, graph)[0, 1, 0], expected, rtol=1e-9)
+    np.testing.assert_array_equal(tf.fill_unseen(texture, np.ones((1, 3)), graph), texture)     # fully trusted
+
+
+def test_texels_seen_only_edge_on_are_trusted_less_than_those_seen_squarely(tmp_path):
+    """On an exact clip: texel_trust is 0 where the frames do not decide a texel, 1 on the skin the
+    camera faces, below 1 on decided texels no pixel sees at more than a grazing angle, and the
+    squarely seen share of each texel's weight as the test measures it from the frames' own normals."""
+    import torch
+
+    from pipeline.evaluate.exact_clips import write_clip
+    from pipeline.fit import fitting
+    from pipeline.fit.albedo_solve import (FACING_GRAZING, FACING_SQUARE, SQUARE_SHARE, _facing, decided_texels,
+                                           texel_trust)
+    from pipeline.formats import sequence_folder as seq
+    from pipeline.formats.initial_estimate import write_initial_estimate
+    from pipeline.init.initial_from_ground_truth import ground_truth_with_noise
+    from pipeline.render.renderer import render
+    from pipeline.render.texture import bilinear_texels
+    from synth.motions import RELAXED
+
+    folder = tmp_path / "clip"
+    write_clip(folder, RELAXED, frames=3, size=256, turn_degrees=20)
+    gt = seq.read_ground_truth(folder / seq.GT_FILE)
+    write_initial_estimate(folder, ground_truth_with_noise(gt, joint_degrees=0.0, translation_m=0.0, seed=0))
+    problem = fitting._set_up(folder, fitting.FitJob("fast", device="cpu"),
+                              {"exposure": "off", "albedo_openness": "off"}).problem
+    avatar, clip = problem.avatar, problem.clip
+    size = avatar.albedo.shape[-1]
+    trust, decided = texel_trust(problem), decided_texels(problem)
+    assert ((trust >= 0) & (trust <= 1)).all() and not trust[~decided].any()
+    best = torch.zeros(size * size)                       # each texel's most head-on view
+    weight, square = torch.zeros(size * size), torch.zeros(size * size)
+    with torch.no_grad():
+        vertices = avatar.posed(problem.all_frames())[0]
+        images = render(vertices, avatar.mesh, clip.K, clip.height, clip.width, outputs=("uv", "alpha", "normal"),
+                        antialiased=False)
+    usable = problem.compared_pixels(problem.all_frames(), albedo_solve=True) & (images["alpha"][..., 0] > 0.5)
+    rows, columns, weights = bilinear_texels(images["uv"][usable], size)
+    facing = _facing(images["normal"], clip.K)[usable][:, None].expand_as(weights)
+    texels = (rows * size + columns).flatten()
+    best.scatter_reduce_(0, texels, torch.where(weights > 0.05, facing, 0).flatten(), reduce="amax")
+    best = best.view(size, size)
+    weight.index_add_(0, texels, weights.flatten())
+    ramp = ((facing - FACING_GRAZING) / (FACING_SQUARE - FACING_GRAZING)).clamp(0, 1)
+    square.index_add_(0, texels, (weights * ramp * ramp * (3 - 2 * ramp)).flatten())
+    share = (square / weight.clamp(min=1e-12)).view(size, size)
+    edge_on = decided & (best < 2 * FACING_GRAZING)
+    squarely = decided & (best > 0.8)
+    assert edge_on.any() and squarely.sum() > 1000, (int(edge_on.sum()), int(squarely.sum()))
+    assert (trust[edge_on] < 1).all() and (trust[squarely] == 1).all()
+    ramp = (share / SQUARE_SHARE).clamp(0, 1)
+    torch.testing.assert_close(trust[decided], (ramp * ramp * (3 - 2 * ramp))[decided], rtol=0, atol=1e-4)
+    # the fit's fill reads the trust its settings name: the decided texels by default, texel_trust when feathered
+    assert torch.equal(fitting.fill_trust(problem), decided)
+    problem.settings.albedo_fill = "feathered"
+    torch.testing.assert_close(fitting.fill_trust(problem), trust)

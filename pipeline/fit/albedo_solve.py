@@ -64,6 +64,10 @@ from ..render.shading import environment_basis_values, sphere_radiance_basis
 from ..render.texture import bilinear_texels
 
 MIN_COVERAGE = 1.0      # bilinear weight (about one pixel's worth) a texel needs to be solved
+# texel_trust: a pixel sees its skin edge-on at a facing (_facing) below FACING_GRAZING, squarely from
+# FACING_SQUARE on; a texel is kept as solved where squarely seen pixels give at least SQUARE_SHARE of its weight
+FACING_GRAZING, FACING_SQUARE = 0.15, 0.5
+SQUARE_SHARE = 0.5
 MIN_SHADING = 0.05      # pixels darker than this (shading of an albedo of 1) carry no colour
 OPEN_UP_TO = 0.15       # FitSettings.albedo_openness: a pixel whose surface the hand hides this share of the
 ENCLOSED_FROM = 0.35    # room from weighs fully; from this share on, not at all (openness)
@@ -407,30 +411,60 @@ def _facing(normals, K):
 
 
 @torch.no_grad()
-def decided_texels(problem, batch_size=SOLVE_BATCH, frames=None):
-    """(T, T) bool: the texels of the avatar's albedo that its frames decide (of `frames`, indices
-    into the fitted frames, default all), those the pixels the solve reads
-    (FitProblem.compared_pixels with albedo_solve) give at least MIN_COVERAGE of bilinear weight:
-    the texels the solve solves, each pixel weighted by its openness where FitSettings.albedo_openness
-    is on (as the solve weighs it). Any other texel holds what the appearance stage left (its starting
-    colour where no compared pixel reached it: a finger's side, seen edge-on at the silhouette),
-    and texture_fill.py fills it."""
+def texel_coverage(problem, batch_size=SOLVE_BATCH, frames=None):
+    """((T, T), (T, T)): the bilinear weight each texel of the avatar's albedo gets from the pixels
+    the solve reads (FitProblem.compared_pixels with albedo_solve) in `frames` (indices into the
+    fitted frames, default all), each pixel weighted by its openness where FitSettings.albedo_openness
+    is on (as the solve weighs it); and the part of it from pixels that see their skin squarely, each
+    weighted by smoothstep of its facing (_facing) from FACING_GRAZING to FACING_SQUARE."""
     avatar, clip = problem.avatar, problem.clip
     openness_on = problem.settings.albedo_openness == "on"
     size = avatar.albedo.shape[-1]
     coverage = torch.zeros(size * size, dtype=avatar.albedo.dtype, device=avatar.albedo.device)
+    squarely = torch.zeros_like(coverage)
     chosen = torch.arange(len(problem.frames)) if frames is None else torch.as_tensor(frames, dtype=torch.long)
     for batch in chosen.to(avatar.albedo.device).split(batch_size):
         vertices, _ = avatar.posed(batch)
         images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width,
-                        outputs=("uv", "alpha") + (("vertex_values",) if openness_on else ()), antialiased=False,
-                        vertex_values=_room_hidden(avatar, batch, vertices) if openness_on else None)
+                        outputs=("uv", "alpha", "normal") + (("vertex_values",) if openness_on else ()),
+                        antialiased=False, vertex_values=_room_hidden(avatar, batch, vertices) if openness_on else None)
         usable = problem.compared_pixels(batch, albedo_solve=True) & (images["alpha"][..., 0] > 0.5)
         rows, columns, weights = bilinear_texels(images["uv"][usable], size)
         if openness_on:
             weights = weights * openness(images["vertex_values"][usable][:, :1])
-        coverage.index_add_(0, (rows * size + columns).flatten(), weights.flatten().to(coverage.dtype))
-    return coverage.view(size, size) >= MIN_COVERAGE
+        square = smoothstep((_facing(images["normal"], clip.K[batch])[usable] - FACING_GRAZING)
+                            / (FACING_SQUARE - FACING_GRAZING))
+        texels = (rows * size + columns).flatten()
+        coverage.index_add_(0, texels, weights.flatten().to(coverage.dtype))
+        squarely.index_add_(0, texels, (weights * square[:, None]).flatten().to(coverage.dtype))
+    return coverage.view(size, size), squarely.view(size, size)
+
+
+def decided_texels(problem, batch_size=SOLVE_BATCH, frames=None):
+    """(T, T) bool: the texels of the avatar's albedo that its frames decide (texel_coverage: at least
+    MIN_COVERAGE of bilinear weight), the texels the solve solves. Any other texel holds what the
+    appearance stage left (its starting colour where no compared pixel reached it: a finger's side,
+    seen edge-on at the silhouette), and texture_fill.py fills it."""
+    return texel_coverage(problem, batch_size, frames)[0] >= MIN_COVERAGE
+
+
+def texel_trust(problem, batch_size=SOLVE_BATCH, frames=None):
+    """(T, T) in [0, 1]: how far the fill keeps each texel as the solve left it (texture_fill.fill_unseen):
+    0 where the frames do not decide it, 1 where pixels that see its skin squarely give at least
+    SQUARE_SHARE of its weight (as they weigh in its solved colour), smoothly between. A texel seen
+    mostly edge-on (the hand's side in a clip that never turns it to the camera) holds the rim's light
+    (the mask's edge, a pose a pixel off, the sheen at grazing angles): kept as solved, it drew a dark
+    jagged line where the solved texels met the fill on a real clip (docs/real_footage.md). A share,
+    not an amount: the same at any frame size and clip length."""
+    coverage, squarely = texel_coverage(problem, batch_size, frames)
+    trust = smoothstep(squarely / coverage.clamp(min=1e-12) / SQUARE_SHARE)
+    return torch.where(coverage >= MIN_COVERAGE, trust, torch.zeros_like(trust))
+
+
+def smoothstep(x):
+    """3x^2 - 2x^3 of x clamped to [0, 1]."""
+    x = x.clamp(0.0, 1.0)
+    return x * x * (3 - 2 * x)
 
 
 def _consistency_weights(seen, albedo, size):

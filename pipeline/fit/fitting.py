@@ -20,7 +20,7 @@ import torch
 from ..formats.environment_light import colour_strength, relative_strength
 from ..formats.initial_estimate import read_initial_estimate
 from ..formats.sequence_folder import validate_sequence_folder
-from .albedo_solve import decided_texels, solve_avatar_albedo
+from .albedo_solve import decided_texels, solve_avatar_albedo, texel_trust
 from .avatar import APPEARANCE, SHAPE, SWITCHES
 from .checkpoint import CHECKPOINT_FILE, CHECKPOINT_VERSION, Checkpoint, FitState, load_checkpoint, save_checkpoint
 from .budget import BudgetKeeper
@@ -316,9 +316,11 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
             save()
     if state.texture_fill is None and not problem.known_appearance:
         with timed("texture_fill"):
-            state.texture_fill = fill_avatar_albedo(problem.avatar, decided_texels(seen, frames=painting))
+            state.texture_fill = fill_avatar_albedo(problem.avatar, fill_trust(seen, frames=painting))
         reporter.log(f"albedo: {state.texture_fill['unseen_fraction']:.0%} of the texels not decided by the frames "
-                     f"(never seen, or only at the silhouette), filled through the surface "
+                     f"(never seen, or only at the silhouette), filled through the surface"
+                     + (f", {state.texture_fill['blended_fraction']:.0%} seen only thinly or edge-on blended into it"
+                        if state.texture_fill.get("blended_fraction") else "") + " "
                      f"(seam contrast {state.texture_fill['seam_contrast_before']:.3f} -> "
                      f"{state.texture_fill['seam_contrast_after']:.3f})")
         save()
@@ -330,6 +332,14 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
                      f"from the last pass's albedo and room light: mean change "
                      f"{(again[FINER_SOLVE] or again['working'])['mean_change']:.3f}")
         save()
+
+
+def fill_trust(problem, frames=None):
+    """(T, T): how far the fill keeps each texel of the avatar's albedo as solved, as FitSettings.albedo_fill
+    asks: albedo_solve.texel_trust ("feathered") or the texels the frames decide ("decided")."""
+    if problem.settings.albedo_fill == "decided":
+        return decided_texels(problem, frames=frames)
+    return texel_trust(problem, frames=frames)
 
 
 def solve_and_fill_again(problem, shadows, frames=None) -> dict:
@@ -344,7 +354,7 @@ def solve_and_fill_again(problem, shadows, frames=None) -> dict:
     working = solve_avatar_albedo(problem, shadows, frames=frames)
     seen = problem.at_resolution(problem.settings.solve_resolution)
     finer = None if seen is problem else solve_avatar_albedo(seen, shadows, solve_environment=False, frames=frames)
-    fill = fill_avatar_albedo(problem.avatar, decided_texels(seen, frames=frames))
+    fill = fill_avatar_albedo(problem.avatar, fill_trust(seen, frames=frames))
     return {"working": working, FINER_SOLVE: finer, "fill": fill, "seconds": time.perf_counter() - started}
 
 

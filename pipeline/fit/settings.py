@@ -12,6 +12,7 @@ from .schedule import Schedule, StageKind
 
 # the default energy weights, one per registered term (energy_terms.py: Table C.1 and ours)
 WEIGHTS = default_weights()
+ALBEDO_FILL_CHOICES = ("decided", "feathered")   # FitSettings.albedo_fill
 # FitSettings.occlusion: in the stages and after them, after them only, not at all
 OCCLUSION_CHOICES = ("on", "after", "off")
 
@@ -133,6 +134,13 @@ class FitSettings:
     # demo's 3 seeds the albedo 1.9-2.1 dB nearer the truth, new poses +0.31-0.50 dB, held out -0.54-0.71 dB (the
     # hollows Cycles darkens; with occlusion "on" as well, within 0.2 dB: docs/fidelity.md)
     albedo_openness: str = "on"
+    # what the fill keeps of the solved albedo (texture_fill.fill_unseen): "decided", the default, every texel the
+    # frames decide kept as solved; or "feathered", each texel as far as pixels that see its skin squarely decide it
+    # (albedo_solve.texel_trust: a texel seen mostly edge-on blends into the fill). On a real clip that never turns
+    # the palm to the camera, "decided" draws a dark jagged line along the hand's side where the solved texels meet
+    # the fill, and "feathered" removes it; on the phone-like clip's seed 0 the same refill cost new poses 0.47 dB
+    # (0.19 with a share of 0.1): there the edge-on texels hold the tone boundary (docs/real_footage.md)
+    albedo_fill: str = "decided"
     # frames kept out of the fit and scored as it runs: the best state is written (validation.py). Off until it
     # is shown to help: with `fast` on the demo clip (3 seeds) it left held-out PSNR level (27.76 dB both), joints
     # 0.11 mm worse, 10% more time; on the sun clip it went back to an earlier state whose surface was 36% worse
@@ -192,6 +200,8 @@ class FitSettings:
             raise ValueError(f"albedo_facing must be 'on' or 'off', got {self.albedo_facing!r}")
         if self.albedo_openness not in ("on", "off"):
             raise ValueError(f"albedo_openness must be 'on' or 'off', got {self.albedo_openness!r}")
+        if self.albedo_fill not in ALBEDO_FILL_CHOICES:
+            raise ValueError(f"albedo_fill must be one of {', '.join(ALBEDO_FILL_CHOICES)}, got {self.albedo_fill!r}")
         if not isinstance(self.align_downscale, int) or self.align_downscale < 1:
             raise ValueError(f"align_downscale must be a whole number from 1 (the working size), "
                              f"got {self.align_downscale!r}")

@@ -5,8 +5,9 @@ another chart, far away in the image. So the fill works on a graph over the texe
 charts whose edges join (a) texels next to each other in the atlas and (b) border texels of
 different charts that lie next to each other on the rest surface (closer than SEAM_REACH texel
 widths in 3D). On that graph the unseen texels take the values that vary least (a screened
-harmonic fill): seen texels are fixed, every edge pulls its ends together, and a weak pull
-(SKIN_PRIOR) towards the median seen colour decides regions the graph leaves undetermined.
+harmonic fill): trusted texels are kept, every edge pulls its ends together, texels the frames
+barely decide are pulled towards their own value as far as they are trusted (fill_unseen), and a
+weak pull (SKIN_PRIOR) towards the median seen colour decides regions the graph leaves undetermined.
 Outside the charts every texel takes its nearest chart texel's value, so texture filtering at
 chart borders picks up skin, not background.
 
@@ -74,14 +75,17 @@ def seam_contrast(texture, graph: TexelGraph):
     return float(np.abs(values[graph.seams[:, 0]] - values[graph.seams[:, 1]]).mean())
 
 
-def fill_unseen(texture, seen, graph: TexelGraph):
-    """The texture (T, T, C) with every inside texel not in `seen` (T, T) filled from the seen
-    ones through the graph (module docstring), and every outside texel from its nearest inside
-    texel. Seen texels keep their values."""
+def fill_unseen(texture, trust, graph: TexelGraph):
+    """The texture (T, T, C) with every inside texel not fully trusted filled from the others through
+    the graph (module docstring), and every outside texel from its nearest inside texel. `trust`
+    (T, T), bool or in [0, 1]: 1 keeps a texel's value, 0 fills it as unseen, and between, the texel
+    is pulled towards its own value with t / (1 - t) the weight of one edge, so a thinly or only
+    edge-on seen texel blends into its neighbours instead of ending the fill in a hard line."""
     texture = np.asarray(texture, dtype=np.float64)
     values = texture[graph.inside].copy()
-    known = seen[graph.inside]
-    if known.any() and not known.all():
+    t = np.clip(np.asarray(trust, dtype=np.float64)[graph.inside], 0.0, 1.0)
+    kept, seen = t >= 1.0, t > 0.0
+    if seen.any() and not kept.all():
         count = len(values)
         weights = np.ones(len(graph.edges))
         adjacency = scipy.sparse.coo_matrix((np.concatenate([weights, weights]),
@@ -89,11 +93,13 @@ def fill_unseen(texture, seen, graph: TexelGraph):
                                               np.concatenate([graph.edges[:, 1], graph.edges[:, 0]]))),
                                             shape=(count, count)).tocsr()
         laplacian = scipy.sparse.diags(np.asarray(adjacency.sum(1)).ravel()) - adjacency
-        unknown = np.nonzero(~known)[0]
-        system = laplacian[unknown][:, unknown] + SKIN_PRIOR * scipy.sparse.identity(len(unknown))
-        prior = np.median(values[known], axis=0)
-        right = -laplacian[unknown][:, np.nonzero(known)[0]] @ values[known] + SKIN_PRIOR * prior
-        values[unknown] = scipy.sparse.linalg.splu(system.tocsc()).solve(right)
+        free = np.nonzero(~kept)[0]
+        own = np.where(seen, t, 0.0)[free] / np.maximum(1.0 - t[free], 1e-12)    # pull to its own value
+        system = laplacian[free][:, free] + scipy.sparse.diags(own + SKIN_PRIOR)
+        prior = np.median(values[seen], axis=0)
+        right = (-laplacian[free][:, np.nonzero(kept)[0]] @ values[kept] + own[:, None] * values[free]
+                 + SKIN_PRIOR * prior)
+        values[free] = scipy.sparse.linalg.splu(system.tocsc()).solve(right)
     filled = texture.copy()
     filled[graph.inside] = values
     return extend_outside(filled, graph.inside)
@@ -109,10 +115,11 @@ def extend_outside(texture, inside):
     return texture
 
 
-def fill_avatar_albedo(avatar, decided) -> dict:
-    """Fill the texels of the avatar's albedo that its frames do not decide (`decided` (T, T) bool:
-    albedo_solve.decided_texels), and the normal map's outside the charts (in place, under
-    no_grad); returns the share filled and the seam contrast before and after.
+def fill_avatar_albedo(avatar, trust) -> dict:
+    """Fill the texels of the avatar's albedo that its frames do not decide and blend those they
+    barely decide into the fill (`trust` (T, T): albedo_solve.texel_trust, or decided_texels' bool),
+    and the normal map's outside the charts (in place, under no_grad); returns the shares filled
+    (trust 0) and blended (between 0 and 1), and the seam contrast before and after.
 
     Undecided is more than unseen: a texel the frames show only at the silhouette, outside the
     pixels the fit compares (a finger's side seen edge-on), was never fitted and still holds the
@@ -123,16 +130,17 @@ def fill_avatar_albedo(avatar, decided) -> dict:
     size = avatar.albedo.shape[-1]
     data = avatar.model.data
     with torch.no_grad():
-        seen = decided.cpu().numpy()
+        trust = np.asarray(trust.cpu().numpy(), dtype=np.float64)
         graph = texel_graph(avatar.rest_mesh().cpu().numpy(), data.faces, data.uvs, data.faces_uv, size)
         albedo = avatar.albedo.clamp(0, 1).permute(1, 2, 0).cpu().double().numpy()
-        filled = fill_unseen(albedo, seen, graph)
+        filled = fill_unseen(albedo, trust, graph)
         avatar.albedo.copy_(torch.as_tensor(filled, dtype=avatar.albedo.dtype).permute(2, 0, 1))
         # the normal map's texels outside the charts get gradients through filtering but no
         # regulariser: left as fitted, they tilt up to 40 degrees (a real clip) along the seams
         normals = avatar.normal_map.permute(1, 2, 0).cpu().double().numpy()
         avatar.normal_map.copy_(torch.as_tensor(extend_outside(normals, graph.inside),
                                                 dtype=avatar.normal_map.dtype).permute(2, 0, 1))
-    unseen = graph.inside & ~seen
-    return {"unseen_fraction": float(unseen.sum() / max(graph.inside.sum(), 1)),
+    inside = max(graph.inside.sum(), 1)
+    return {"unseen_fraction": float((graph.inside & (trust <= 0)).sum() / inside),
+            "blended_fraction": float((graph.inside & (trust > 0) & (trust < 1)).sum() / inside),
             "seam_contrast_before": seam_contrast(albedo, graph), "seam_contrast_after": seam_contrast(filled, graph)}
