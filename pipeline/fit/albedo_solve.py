@@ -58,6 +58,7 @@ import torch
 
 from ..formats.colour_model import linear_to_srgb, srgb_to_linear
 from ..formats.environment_light import relative_strength
+from ..handmodel.digit_coordinates import smoothstep
 from ..render.rasterize import pixel_rays
 from ..render.renderer import lobe_colour, render
 from ..render.shading import environment_basis_values, sphere_radiance_basis
@@ -459,12 +460,6 @@ def texel_trust(problem, batch_size=SOLVE_BATCH, frames=None):
     coverage, squarely = texel_coverage(problem, batch_size, frames)
     trust = smoothstep(squarely / coverage.clamp(min=1e-12) / SQUARE_SHARE)
     return torch.where(coverage >= MIN_COVERAGE, trust, torch.zeros_like(trust))
-
-
-def smoothstep(x):
-    """3x^2 - 2x^3 of x clamped to [0, 1]."""
-    x = x.clamp(0.0, 1.0)
-    return x * x * (3 - 2 * x)
 
 
 def _consistency_weights(seen, albedo, size):

@@ -76,7 +76,8 @@ def digit_membership(coordinates, parts=None, inner=1.15, outer=2.2):
 
 
 def smoothstep(x):
-    x = np.clip(x, 0.0, 1.0)
+    """3x^2 - 2x^3 of x clamped to [0, 1], for numpy arrays and torch tensors alike."""
+    x = x.clip(0.0, 1.0) if hasattr(x, "clip") else np.clip(x, 0.0, 1.0)
     return x * x * (3 - 2 * x)
 
 
