@@ -412,12 +412,13 @@ def _facing(normals, K):
 
 
 @torch.no_grad()
-def texel_coverage(problem, batch_size=SOLVE_BATCH, frames=None):
-    """((T, T), (T, T)): the bilinear weight each texel of the avatar's albedo gets from the pixels
-    the solve reads (FitProblem.compared_pixels with albedo_solve) in `frames` (indices into the
-    fitted frames, default all), each pixel weighted by its openness where FitSettings.albedo_openness
-    is on (as the solve weighs it); and the part of it from pixels that see their skin squarely, each
-    weighted by smoothstep of its facing (_facing) from FACING_GRAZING to FACING_SQUARE."""
+def texel_coverage(problem, batch_size=SOLVE_BATCH, frames=None, squarely_seen=True):
+    """((T, T), (T, T) or None): the bilinear weight each texel of the avatar's albedo gets from the
+    pixels the solve reads (FitProblem.compared_pixels with albedo_solve) in `frames` (indices into
+    the fitted frames, default all), each pixel weighted by its openness where
+    FitSettings.albedo_openness is on (as the solve weighs it); and, with `squarely_seen`, the part of
+    it from pixels that see their skin squarely, each weighted by smoothstep of its facing (_facing)
+    from FACING_GRAZING to FACING_SQUARE."""
     avatar, clip = problem.avatar, problem.clip
     openness_on = problem.settings.albedo_openness == "on"
     size = avatar.albedo.shape[-1]
@@ -427,18 +428,20 @@ def texel_coverage(problem, batch_size=SOLVE_BATCH, frames=None):
     for batch in chosen.to(avatar.albedo.device).split(batch_size):
         vertices, _ = avatar.posed(batch)
         images = render(vertices, avatar.mesh, clip.K[batch], clip.height, clip.width,
-                        outputs=("uv", "alpha", "normal") + (("vertex_values",) if openness_on else ()),
+                        outputs=("uv", "alpha") + (("normal",) if squarely_seen else ())
+                        + (("vertex_values",) if openness_on else ()),
                         antialiased=False, vertex_values=_room_hidden(avatar, batch, vertices) if openness_on else None)
         usable = problem.compared_pixels(batch, albedo_solve=True) & (images["alpha"][..., 0] > 0.5)
         rows, columns, weights = bilinear_texels(images["uv"][usable], size)
         if openness_on:
             weights = weights * openness(images["vertex_values"][usable][:, :1])
-        square = smoothstep((_facing(images["normal"], clip.K[batch])[usable] - FACING_GRAZING)
-                            / (FACING_SQUARE - FACING_GRAZING))
         texels = (rows * size + columns).flatten()
         coverage.index_add_(0, texels, weights.flatten().to(coverage.dtype))
-        squarely.index_add_(0, texels, (weights * square[:, None]).flatten().to(coverage.dtype))
-    return coverage.view(size, size), squarely.view(size, size)
+        if squarely_seen:
+            square = smoothstep((_facing(images["normal"], clip.K[batch])[usable] - FACING_GRAZING)
+                                / (FACING_SQUARE - FACING_GRAZING))
+            squarely.index_add_(0, texels, (weights * square[:, None]).flatten().to(coverage.dtype))
+    return coverage.view(size, size), squarely.view(size, size) if squarely_seen else None
 
 
 def decided_texels(problem, batch_size=SOLVE_BATCH, frames=None):
@@ -446,7 +449,7 @@ def decided_texels(problem, batch_size=SOLVE_BATCH, frames=None):
     MIN_COVERAGE of bilinear weight), the texels the solve solves. Any other texel holds what the
     appearance stage left (its starting colour where no compared pixel reached it: a finger's side,
     seen edge-on at the silhouette), and texture_fill.py fills it."""
-    return texel_coverage(problem, batch_size, frames)[0] >= MIN_COVERAGE
+    return texel_coverage(problem, batch_size, frames, squarely_seen=False)[0] >= MIN_COVERAGE
 
 
 def texel_trust(problem, batch_size=SOLVE_BATCH, frames=None):

@@ -94,7 +94,7 @@ def fill_unseen(texture, trust, graph: TexelGraph):
                                             shape=(count, count)).tocsr()
         laplacian = scipy.sparse.diags(np.asarray(adjacency.sum(1)).ravel()) - adjacency
         free = np.nonzero(~kept)[0]
-        own = np.where(seen, t, 0.0)[free] / np.maximum(1.0 - t[free], 1e-12)    # pull to its own value
+        own = t[free] / (1.0 - t[free])    # each free texel's pull to its own value (0 where unseen)
         system = laplacian[free][:, free] + scipy.sparse.diags(own + SKIN_PRIOR)
         prior = np.median(values[seen], axis=0)
         right = (-laplacian[free][:, np.nonzero(kept)[0]] @ values[kept] + own[:, None] * values[free]
