@@ -117,7 +117,7 @@ def test_a_partly_trusted_texel_is_pulled_to_its_own_value_as_far_as_it_is_trust
     median of the trusted-at-all texels (0.5 here): x = (1 + w v + SKIN_PRIOR m) / (2 + w + SKIN_PRIOR)."""
     inside = np.zeros((1, 3), bool)
     inside[:] = True
-    graph = tf.TexelGraph(inside, np.arange(3).reshape(1, 3), np.array([[0, 1], [1, 2]]), np.zeros((0, 2), np.int64))
+    graph = tf.TexelGraph(inside, np.arange(3).reshape(1, 3), np.array([[0, 1], [1, 2]]), np.zeros((0, 2), np.int64), 1.0)
     texture = np.array([[[0.0], [0.9], [1.0]]])
     for t in (0.0, 0.25, 0.5, 0.9):
         trust = np.array([[1.0, t, 1.0]])
@@ -128,7 +128,7 @@ def test_a_partly_trusted_texel_is_pulled_to_its_own_value_as_far_as_it_is_trust
     np.testing.assert_array_equal(tf.fill_unseen(texture, np.ones((1, 3)), graph), texture)     # fully trusted
 
 
-def test_texels_seen_only_edge_on_are_trusted_less_than_those_seen_squarely(tmp_path):
+def test_texels_seen_only_edge_on_are_trusted_less_than_those_seen_squarely(tmp_path, monkeypatch):
     """On an exact clip: texel_trust is 0 where the frames do not decide a texel, 1 on the skin the
     camera faces, below 1 on decided texels no pixel sees at more than a grazing angle, and the
     squarely seen share of each texel's weight as the test measures it from the frames' own normals."""
@@ -181,3 +181,60 @@ def test_texels_seen_only_edge_on_are_trusted_less_than_those_seen_squarely(tmp_
     assert torch.equal(fitting.fill_trust(problem), decided)
     problem.settings.albedo_fill = "feathered"
     torch.testing.assert_close(fitting.fill_trust(problem), trust)
+    # and "edge" fills with that trust kept to the fill's edge
+    filled = {}
+    monkeypatch.setattr(fitting, "fill_avatar_albedo",
+                        lambda avatar, trust, blend_reach=None: filled.update(trust=trust, reach=blend_reach))
+    fitting.fill_albedo(problem, problem)
+    assert filled["reach"] is None
+    problem.settings.albedo_fill = "edge"
+    fitting.fill_albedo(problem, problem)
+    assert filled["reach"] == fitting.EDGE_BLEND_REACH
+    torch.testing.assert_close(filled["trust"], trust)
+
+
+def test_blending_kept_to_the_fills_edge_falls_off_linearly_with_the_hops_to_it():
+    """A row of 8 texels, the first one unseen (trust 0) and the rest trusted 0.3, texels 2 mm apart,
+    the last joined to the first by a seam edge: with a reach of 6 mm (3 hops) a texel d hops from the
+    unseen one keeps 1 - 0.7 min(1, max(0, (4 - d) / 3)) of trust, the seam counting as one hop."""
+    inside = np.ones((1, 8), bool)
+    chain = np.array([[k, k + 1] for k in range(7)])
+    seam = np.array([[7, 0]])
+    trust = np.array([[0.0] + [0.3] * 7])
+    without_seam = tf.TexelGraph(inside, np.arange(8).reshape(1, 8), chain, np.zeros((0, 2), np.int64), 0.002)
+    hops = np.arange(8.0)
+    expected = 1 - 0.7 * np.clip((4 - hops) / 3, 0, 1)
+    expected[0] = 0.0
+    np.testing.assert_allclose(tf.trusted_away_from_fill(trust, without_seam, 0.006)[0], expected, rtol=1e-12)
+    np.testing.assert_array_equal(tf.hops_from_unseen(trust, without_seam, limit=4.0)[0],
+                                  [0, 1, 2, 3, 4, np.inf, np.inf, np.inf])
+    with_seam = tf.TexelGraph(inside, np.arange(8).reshape(1, 8), np.concatenate([chain, seam]), seam, 0.002)
+    hops = np.minimum(np.arange(8.0), 8 - np.arange(8.0))
+    expected = 1 - 0.7 * np.clip((4 - hops) / 3, 0, 1)
+    expected[0] = 0.0
+    np.testing.assert_allclose(tf.trusted_away_from_fill(trust, with_seam, 0.006)[0], expected, rtol=1e-12)
+    # nothing unseen: nothing blends; a bool trust passes through unchanged
+    np.testing.assert_array_equal(tf.trusted_away_from_fill(np.full((1, 8), 0.3), without_seam, 0.006), 1.0)
+    decided = np.array([[False] + [True] * 7])
+    np.testing.assert_array_equal(tf.trusted_away_from_fill(decided, without_seam, 0.006), decided.astype(float))
+
+
+def test_the_fill_blends_only_near_the_fill_when_it_is_kept_to_the_edge(hand):
+    """On the hand's atlas: with the blending kept to the fill's edge, a texel far from every unseen
+    texel keeps its solved value though its trust is low, and one next to the fill moves as it does
+    with the blending everywhere."""
+    data, graph, points = hand
+    rng = np.random.default_rng(0)
+    texture = rng.uniform(0.2, 0.8, (SIZE, SIZE, 3))
+    unseen = graph.inside & (points[..., 0] > np.quantile(points[graph.inside][:, 0], 0.8))
+    trust = np.where(unseen, 0.0, 0.4)
+    reach = 3 * graph.texel_width
+    hops = tf.hops_from_unseen(trust, graph, limit=10.0)
+    everywhere = tf.fill_unseen(texture, trust, graph)
+    at_edge = tf.fill_unseen(texture, tf.trusted_away_from_fill(trust, graph, reach), graph)
+    far = graph.inside & (hops > 4.5)
+    near = graph.inside & (hops == 1)
+    assert far.sum() > 1000 and near.sum() > 50
+    np.testing.assert_array_equal(at_edge[far], texture[far])
+    assert np.abs(everywhere[far] - texture[far]).mean() > 0.05
+    assert np.abs(at_edge[near] - texture[near]).mean() > 0.5 * np.abs(everywhere[near] - texture[near]).mean()

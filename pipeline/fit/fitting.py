@@ -72,6 +72,9 @@ KNOWN_APPEARANCE = SHAPE + APPEARANCE   # what a fit with known appearance takes
 AFTER_THE_STAGES = ("solve_albedo", "solve_resolution", "light_size", "grow_texture")
 # the key of FitState.albedo_solve that holds the figures of its finer pass (albedo alone, at solve_resolution)
 FINER_SOLVE = "finer"
+# FitSettings.albedo_fill "edge": how far from the fill texels seen mostly edge-on blend into it (metres
+# on the rest surface)
+EDGE_BLEND_REACH = 0.004
 # a budgeted fit resumes with a new budget, or without one on the schedule it had (FitState.schedule)
 BUDGET = ("budget_seconds",)
 # the alignment's silhouette size: its poses come out the same at either (docs/performance.md), so a fit started
@@ -316,7 +319,7 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
             save()
     if state.texture_fill is None and not problem.known_appearance:
         with timed("texture_fill"):
-            state.texture_fill = fill_avatar_albedo(problem.avatar, fill_trust(seen, frames=painting))
+            state.texture_fill = fill_albedo(problem, seen, frames=painting)
         reporter.log(f"albedo: {state.texture_fill['unseen_fraction']:.0%} of the texels not decided by the frames "
                      f"(never seen, or only at the silhouette), filled through the surface"
                      + (f", {state.texture_fill['blended_fraction']:.0%} seen only thinly or edge-on blended into it"
@@ -336,10 +339,18 @@ def _after_the_stages(problem, state, reporter, save, validator=None):
 
 def fill_trust(problem, frames=None):
     """(T, T): how far the fill keeps each texel of the avatar's albedo as solved, as FitSettings.albedo_fill
-    asks: albedo_solve.texel_trust ("feathered") or the texels the frames decide ("decided")."""
+    asks: albedo_solve.texel_trust ("feathered", "edge") or the texels the frames decide ("decided")."""
     if problem.settings.albedo_fill == "decided":
         return decided_texels(problem, frames=frames)
     return texel_trust(problem, frames=frames)
+
+
+def fill_albedo(problem, seen, frames=None) -> dict:
+    """Fill the avatar's albedo as FitSettings.albedo_fill asks, the trust measured on the frames
+    `seen` (the problem at the resolution the albedo was last solved from); "edge" blends only within
+    EDGE_BLEND_REACH of the fill (texture_fill.trusted_away_from_fill)."""
+    reach = EDGE_BLEND_REACH if problem.settings.albedo_fill == "edge" else None
+    return fill_avatar_albedo(problem.avatar, fill_trust(seen, frames=frames), blend_reach=reach)
 
 
 def solve_and_fill_again(problem, shadows, frames=None) -> dict:
@@ -354,7 +365,7 @@ def solve_and_fill_again(problem, shadows, frames=None) -> dict:
     working = solve_avatar_albedo(problem, shadows, frames=frames)
     seen = problem.at_resolution(problem.settings.solve_resolution)
     finer = None if seen is problem else solve_avatar_albedo(seen, shadows, solve_environment=False, frames=frames)
-    fill = fill_avatar_albedo(problem.avatar, fill_trust(seen, frames=frames))
+    fill = fill_albedo(problem, seen, frames=frames)
     return {"working": working, FINER_SOLVE: finer, "fill": fill, "seconds": time.perf_counter() - started}
 
 

@@ -12,7 +12,7 @@ from .schedule import Schedule, StageKind
 
 # the default energy weights, one per registered term (energy_terms.py: Table C.1 and ours)
 WEIGHTS = default_weights()
-ALBEDO_FILL_CHOICES = ("decided", "feathered")   # FitSettings.albedo_fill
+ALBEDO_FILL_CHOICES = ("decided", "feathered", "edge")   # FitSettings.albedo_fill
 # FitSettings.occlusion: in the stages and after them, after them only, not at all
 OCCLUSION_CHOICES = ("on", "after", "off")
 

@@ -20,6 +20,7 @@ import dataclasses
 
 import numpy as np
 import scipy.sparse
+import scipy.sparse.csgraph
 import scipy.sparse.linalg
 from scipy import ndimage
 from scipy.spatial import cKDTree
@@ -38,6 +39,7 @@ class TexelGraph:
     index: np.ndarray       # (T, T) int: row of each inside texel in the graph, -1 outside
     edges: np.ndarray       # (E, 2) atlas neighbours and seam neighbours
     seams: np.ndarray       # (S, 2) the seam edges alone
+    texel_width: float      # metres on the rest surface between neighbouring texels (median)
 
 
 def texel_graph(vertices, faces, uvs, faces_uv, size) -> TexelGraph:
@@ -64,7 +66,37 @@ def texel_graph(vertices, faces, uvs, faces_uv, size) -> TexelGraph:
     pairs = np.array(sorted(tree.query_pairs(SEAM_REACH * texel_width)), dtype=np.int64).reshape(-1, 2)
     far_in_atlas = np.abs(rows[pairs[:, 0]] - rows[pairs[:, 1]]) + np.abs(cols[pairs[:, 0]] - cols[pairs[:, 1]]) > 3
     seams = border_ids[pairs[far_in_atlas]]
-    return TexelGraph(inside, index, np.concatenate([grid, seams]), seams)
+    return TexelGraph(inside, index, np.concatenate([grid, seams]), seams, texel_width)
+
+
+def hops_from_unseen(trust, graph: TexelGraph, limit):
+    """(T, T): each inside texel's distance through the graph, in edges, to the nearest texel whose
+    trust is 0 (the fill's), counted up to `limit` (farther, and every outside texel: inf)."""
+    t = np.asarray(trust, dtype=np.float64)[graph.inside]
+    distance = np.full(graph.inside.shape, np.inf)
+    unseen = np.nonzero(t <= 0.0)[0]
+    if len(unseen):
+        count = len(t)
+        ones = np.ones(len(graph.edges))
+        adjacency = scipy.sparse.coo_matrix((ones, (graph.edges[:, 0], graph.edges[:, 1])), shape=(count, count))
+        distance[graph.inside] = scipy.sparse.csgraph.dijkstra(adjacency.tocsr(), directed=False, indices=unseen,
+                                                               min_only=True, limit=limit)
+    return distance
+
+
+def trusted_away_from_fill(trust, graph: TexelGraph, reach):
+    """The trust (T, T) with its blending kept to the fill's edge: a texel `reach` metres (on the
+    rest surface, through the graph) or farther from every texel the fill makes (trust 0) is kept
+    as solved (trust 1), one next to the fill keeps its trust, and between, its distrust falls off
+    linearly. A side the frames see mostly edge-on then blends into the fill where it ends the seen
+    skin (a real clip that never shows the palm: the thumb's side) and stays as solved where the
+    frames decide the skin around it (the fingers' sides between a palm and a back both seen, where
+    the tone boundary runs)."""
+    trust = np.asarray(trust, dtype=np.float64)
+    hops = max(reach / graph.texel_width, 1.0)
+    distance = hops_from_unseen(trust, graph, limit=hops + 1.0)
+    distrust_kept = np.clip((hops + 1.0 - distance) / hops, 0.0, 1.0)     # 1 next to the fill, 0 at the reach
+    return 1.0 - (1.0 - trust) * distrust_kept
 
 
 def seam_contrast(texture, graph: TexelGraph):
@@ -115,10 +147,11 @@ def extend_outside(texture, inside):
     return texture
 
 
-def fill_avatar_albedo(avatar, trust) -> dict:
+def fill_avatar_albedo(avatar, trust, blend_reach=None) -> dict:
     """Fill the texels of the avatar's albedo that its frames do not decide and blend those they
-    barely decide into the fill (`trust` (T, T): albedo_solve.texel_trust, or decided_texels' bool),
-    and the normal map's outside the charts (in place, under no_grad); returns the shares filled
+    barely decide into the fill (`trust` (T, T): albedo_solve.texel_trust, or decided_texels' bool;
+    with `blend_reach`, metres, only within that reach of the fill: trusted_away_from_fill), and
+    the normal map's outside the charts (in place, under no_grad); returns the shares filled
     (trust 0) and blended (between 0 and 1), and the seam contrast before and after.
 
     Undecided is more than unseen: a texel the frames show only at the silhouette, outside the
@@ -132,6 +165,8 @@ def fill_avatar_albedo(avatar, trust) -> dict:
     with torch.no_grad():
         trust = np.asarray(trust.cpu().numpy(), dtype=np.float64)
         graph = texel_graph(avatar.rest_mesh().cpu().numpy(), data.faces, data.uvs, data.faces_uv, size)
+        if blend_reach is not None:
+            trust = trusted_away_from_fill(trust, graph, blend_reach)
         albedo = avatar.albedo.clamp(0, 1).permute(1, 2, 0).cpu().double().numpy()
         filled = fill_unseen(albedo, trust, graph)
         avatar.albedo.copy_(torch.as_tensor(filled, dtype=avatar.albedo.dtype).permute(2, 0, 1))
