@@ -153,6 +153,7 @@ def main():
                       **texels, f"sharpness_at_{COMPARED_SIZE}": round(sharpness_at(albedo, args.sequence), 3),
                       "new_poses_overlap": round(poses["psnr_overlap_mean"], 2),
                       "true_shape_wearing_the_albedo": round(poses["fitted_albedo_alone"]["psnr_overlap_mean"], 2),
+                      "at_true_size": round(poses["at_true_size"]["psnr_overlap_mean"], 2) if "at_true_size" in poses else None,
                       "albedo_psnr_scaled": round(texture["psnr_scaled"], 2), "albedo_mae_scaled": round(texture["mae_scaled"], 4),
                       "contrast": round(texture["tones"]["contrast"], 3) if texture.get("tones") else None, "sharpness": round(texture["sharpness_ratio"], 3)}))
 

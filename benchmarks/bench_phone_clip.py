@@ -60,6 +60,7 @@ def acceptance(evaluation):
             .get("psnr_mean"),
             "fitted_psnr": evaluation["fit_frames"].get("psnr_mean"),
             "new_pose_overlap_psnr": fidelity["new_poses"]["psnr_overlap_mean"],
+            "new_pose_overlap_psnr_at_true_size": fidelity["new_poses"].get("at_true_size", {}).get("psnr_overlap_mean"),
             "surface_mm": fidelity["geometry"]["surface_mm_mean"],
             "albedo_sharpness": fidelity["texture"]["sharpness_ratio"]}
 

@@ -114,6 +114,7 @@ def test_the_truth_scores_perfectly(clip, tmp_path):
     assert fidelity.image_scores(*renders[0], *renders[1])["psnr"] == fidelity.PSNR_CAP
     assert len(poses["rows"]) == 7 * 2
     assert poses["fitted_shape_alone"]["psnr_mean"] > 60 and poses["fitted_albedo_alone"]["psnr_mean"] > 60
+    assert poses["at_true_size"]["psnr_mean"] > 60
     assert geometry["apart_from_size"]["scale"] == pytest.approx(1.0, abs=1e-9)
     assert geometry["apart_from_size"]["surface_mm_mean"] < 1e-6
     # the personal offsets (0.2 mm per axis) are what the true template lacks; the avatar's
@@ -147,6 +148,9 @@ def test_a_wrong_size_is_told_apart(clip, tmp_path):
     assert poses["fitted_shape_alone"]["psnr_mean"] == pytest.approx(poses["psnr_mean"], abs=1.0)
     assert poses["fitted_shape_alone"]["iou_mean"] < 0.98
     assert poses["fitted_albedo_alone"]["psnr_mean"] > 60 and poses["fitted_albedo_alone"]["iou_mean"] == 1.0
+    # scaled back to the truth's size (about its wrist, as it was made) the avatar is the truth again
+    assert poses["at_true_size"]["psnr_mean"] > 60 and poses["at_true_size"]["iou_mean"] == 1.0
+    assert poses["at_true_size"]["psnr_overlap_mean"] > poses["psnr_overlap_mean"] + 10
 
 
 def test_only_a_synth_clip_has_a_cycles_truth(clip):

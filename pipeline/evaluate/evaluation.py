@@ -114,7 +114,9 @@ def summary_lines(result):
                          f"{template['true_template']['surface_mm_mean']:.2f} mm, the avatar's without its "
                          f"displacements: {fitted_template:.2f} mm); in new poses the fitted shape with the true albedo "
                          f"scores PSNR {shape['psnr_mean']:.1f} dB (IoU {shape['iou_mean']:.3f}), the true shape "
-                         f"with the fitted albedo {albedo['psnr_mean']:.1f} dB")
+                         f"with the fitted albedo {albedo['psnr_mean']:.1f} dB"
+                         + (f"; the avatar at the truth's size {poses['at_true_size']['psnr_mean']:.1f} dB (overlap "
+                            f"{poses['at_true_size']['psnr_overlap_mean']:.1f})" if "at_true_size" in poses else ""))
         cycles = result["fidelity"].get("cycles")
         if cycles and "unavailable" in cycles:
             lines.append(f"against Cycles: {cycles['unavailable']}")

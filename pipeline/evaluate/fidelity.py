@@ -23,7 +23,9 @@ albedo (gt.npz: shape and personal offsets; gt_albedo.png).
                 judge shape, pose response and texture, not exposure; the raw PSNR is kept too.
                 What limits them: the same figures for the fitted shape with the true albedo
                 (`fitted_shape_alone`) and for the true shape with the fitted albedo
-                (`fitted_albedo_alone`). Shading detail: the fine relief the light shows in
+                (`fitted_albedo_alone`); and the avatar scaled to the truth's size (`at_true_size`,
+                the scale of `apart_from_size`), what the size a monocular clip barely decides
+                costs. Shading detail: the fine relief the light shows in
                 those renders (the shading normals' departure from their local average, mean
                 square over the inner silhouette) of the avatar over the truth's, with and without
                 its normal map: near 1 is a physical surface, well above it checkers, facets or
@@ -244,6 +246,21 @@ def framing(truth_model, pose, azimuth, elevation, size=SIZE) -> Framing:
     return Framing(K, orient, joint_pose, shift, distance, size)
 
 
+class ResizedHand:
+    """A HandModel whose posed hand is scaled by `scale` about its wrist (keypoint 0): the avatar
+    at another size, posed alike (the wrist is the rest frame's origin, so posing a hand scaled
+    about it gives the posed hand scaled about the posed wrist)."""
+
+    def __init__(self, model, scale):
+        self.model, self.scale, self.data = model, float(scale), model.data
+
+    def __call__(self, **pose):
+        out = self.model(**pose)
+        wrist = out.keypoints[:, :1]
+        return dataclasses.replace(out, **{name: wrist + self.scale * (getattr(out, name) - wrist)
+                                           for name in ("vertices", "joints", "keypoints")})
+
+
 def render_posed(subjects, truth_model, pose, azimuth, elevation, size=SIZE, shading_normals=False, linear=False):
     """[(rgb, alpha) (1, H, W, C)] of each (HandModel, Appearance) in `subjects` in `pose` from a
     view, all placed alike (framing()) and lit by a point light up and left of the camera, shaded
@@ -371,33 +388,41 @@ def evaluate_fidelity(avatar_folder, sequence, picture=True, cycles=False):
     # with the fitted albedo
     shape_alone = Appearance(truth.albedo, appearance.normal_map)
     albedo_alone = Appearance(scaled.albedo)
-    poses, renders, rows, parts = novel_poses(truth.data.side), {}, [], {"fitted_shape": [], "fitted_albedo": []}
+    geometry = geometry_errors(files.rig, truth.data)
+    # the avatar at the truth's size as well: a monocular clip barely decides the size (a hand twice as
+    # big twice as far looks the same), so this is what the new poses would score if it did
+    true_size = geometry.get("apart_from_size", {}).get("scale")
+    parts = {"fitted_shape_alone": [], "fitted_albedo_alone": [], **({"at_true_size": []} if true_size else {})}
+    poses, renders, rows = novel_poses(truth.data.side), {}, []
     without_normal_map = Appearance(appearance.albedo)
     details = []     # (avatar, avatar without its normal map, truth) per pose and view
     for name, pose in poses.items():
         for view, (azimuth, elevation) in VIEWS.items():
             (a_rgb, a_alpha, a_normal), (raw_rgb, _, _), (s_rgb, s_alpha, _), (c_rgb, c_alpha, _), \
-                (t_rgb, t_alpha, t_normal), (_, flat_alpha, flat_normal) = render_posed(
+                (t_rgb, t_alpha, t_normal), (_, flat_alpha, flat_normal), *resized = render_posed(
                     [(avatar_model, scaled), (avatar_model, appearance), (avatar_model, shape_alone),
-                     (truth_model, albedo_alone), (truth_model, truth_appearance), (avatar_model, without_normal_map)],
+                     (truth_model, albedo_alone), (truth_model, truth_appearance), (avatar_model, without_normal_map)]
+                    + ([(ResizedHand(avatar_model, true_size), scaled)] if true_size else []),
                     truth_model, pose, azimuth, elevation, shading_normals=True,
                     linear=linear)
             scores = image_scores(a_rgb, a_alpha, t_rgb, t_alpha)
             scores["psnr_raw"] = image_scores(raw_rgb, a_alpha, t_rgb, t_alpha)["psnr"]
             rows.append({"pose": name, "view": view, **scores})
-            parts["fitted_shape"].append(image_scores(s_rgb, s_alpha, t_rgb, t_alpha))
-            parts["fitted_albedo"].append(image_scores(c_rgb, c_alpha, t_rgb, t_alpha))
+            parts["fitted_shape_alone"].append(image_scores(s_rgb, s_alpha, t_rgb, t_alpha))
+            parts["fitted_albedo_alone"].append(image_scores(c_rgb, c_alpha, t_rgb, t_alpha))
+            if resized:
+                parts["at_true_size"].append(image_scores(resized[0][0], resized[0][1], t_rgb, t_alpha))
             renders[name, view] = (a_rgb[0].numpy(), t_rgb[0].numpy())
             # the shading normals do not depend on the albedo: the scaled avatar's are the avatar's
             details.append([shading_detail(normal[0].numpy(), alpha[0, ..., 0].numpy()) for normal, alpha in
                             ((a_normal, a_alpha), (flat_normal, flat_alpha), (t_normal, t_alpha))])
     keys = ("psnr", "ssim", "iou", "psnr_overlap")
     result = {
-        "geometry": {**geometry_errors(files.rig, truth.data),
+        "geometry": {**geometry,
                      "without_personal_detail": personal_detail(files.description, truth)},
         "new_poses": {"rows": rows, **{f"{key}_mean": float(np.mean([r[key] for r in rows])) for key in keys + ("psnr_raw",)},
                       "poses": list(poses), "views": VIEWS, "albedo_scale": texture["scale"],
-                      **{f"{part}_alone": {f"{key}_mean": float(np.mean([r[key] for r in part_rows])) for key in keys}
+                      **{part: {f"{key}_mean": float(np.mean([r[key] for r in part_rows])) for key in keys}
                          for part, part_rows in parts.items()},
                       "shading_detail": shading_detail_summary(details)},
         "texture": texture,
