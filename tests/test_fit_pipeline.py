@@ -109,8 +109,8 @@ def test_each_later_albedo_pass_starts_from_the_last_ones_albedo_and_a_resumed_f
                       problem.avatar.albedo.detach().clone()))
         return solve(problem, shadows, solve_environment, frames)
 
-    def recording_fill(avatar, decided):
-        figures = fill(avatar, decided)
+    def recording_fill(avatar, decided, **options):
+        figures = fill(avatar, decided, **options)
         filled.append(avatar.albedo.detach().clone())
         return figures
 
