@@ -307,12 +307,13 @@ def build_parser():
                           "and room light (default 2, preview 1; 2 against 1 on a phone-like clip's 3 seeds: new poses "
                           "+0.22-0.29 dB, the demo +0.05; about 40 s more on 24 frames, 34 s on 150 on one core: "
                           "docs/fidelity.md)")
-    fit.add_argument("--albedo-fill", choices=("decided", "feathered"), default=None,   # settings.ALBEDO_FILL_CHOICES
+    fit.add_argument("--albedo-fill", choices=("decided", "feathered", "edge"), default=None,   # settings.ALBEDO_FILL_CHOICES
                      help="what the fill keeps of the solved albedo: every texel the frames decide, as solved (decided, "
-                          "default), or each texel as far as pixels that see its skin squarely decide it, so a side the "
-                          "clip only showed edge-on blends into the fill (feathered: on a real clip that never shows the "
-                          "palm it removes a dark line along the hand's side; on a synthetic one it cost new poses "
-                          "0.2-0.5 dB; docs/real_footage.md)")
+                          "default); each texel as far as pixels that see its skin squarely decide it, so a side the "
+                          "clip only showed edge-on blends into the fill (feathered); or that blending only within 4 mm "
+                          "of the fill (edge). On a real clip that never shows the palm both remove a dark line along "
+                          "the hand's side; on the phone-like clip's seed 0 they cost new poses 0.5 and 0.4 dB "
+                          "(docs/real_footage.md)")
     fit.add_argument("--size-anchor", choices=("initial", "alignment"), default=None,
                      help="the size the size_prior term holds: the hand's where the alignment left it (alignment, "
                           "default; the term silent in the alignment), or the initial estimate's (initial; give it "

@@ -83,6 +83,16 @@ def test_harp_fit_offers_the_occlusions_settings_and_passes_the_one_chosen(monke
     assert seen[0]["occlusion"] == "after" and seen[1]["occlusion"] is None     # None: the preset's
 
 
+def test_harp_fit_offers_every_albedo_fill_and_passes_the_one_chosen(monkeypatch):
+    """--albedo-fill's choices are FitSettings' (written out in the command, which does not import torch)."""
+    from pipeline.fit.settings import ALBEDO_FILL_CHOICES
+
+    fit_parser = build_parser()._subparsers._group_actions[0].choices["fit"]
+    assert tuple(next(a for a in fit_parser._actions if a.dest == "albedo_fill").choices) == ALBEDO_FILL_CHOICES
+    seen = _fit_options(monkeypatch, ["fit", "seq", "--out", "a", "--albedo-fill", "edge"], ["fit", "seq", "--out", "a"])
+    assert seen[0]["albedo_fill"] == "edge" and seen[1]["albedo_fill"] is None
+
+
 def test_harp_fit_sets_term_weights_by_name_over_the_defaults(monkeypatch, capsys):
     from pipeline.fit.energy_terms import default_weights
 
