@@ -312,8 +312,8 @@ def build_parser():
                           "default); each texel as far as pixels that see its skin squarely decide it, so a side the "
                           "clip only showed edge-on blends into the fill (feathered); or that blending only within 4 mm "
                           "of the fill (edge). On a real clip that never shows the palm both remove a dark line along "
-                          "the hand's side; on the phone-like clip's seed 0 they cost new poses 0.5 and 0.4 dB "
-                          "(docs/real_footage.md)")
+                          "the hand's side; on the phone-like clip they cost new poses 0.5 dB (feathered, one seed) and "
+                          "0.3-0.4 dB (edge, 3 seeds; docs/real_footage.md)")
     fit.add_argument("--size-anchor", choices=("initial", "alignment"), default=None,
                      help="the size the size_prior term holds: the hand's where the alignment left it (alignment, "
                           "default; the term silent in the alignment), or the initial estimate's (initial; give it "

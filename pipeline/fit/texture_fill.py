@@ -90,8 +90,9 @@ def trusted_away_from_fill(trust, graph: TexelGraph, reach):
     as solved (trust 1), one next to the fill keeps its trust, and between, its distrust falls off
     linearly. A side the frames see mostly edge-on then blends into the fill where it ends the seen
     skin (a real clip that never shows the palm: the thumb's side) and stays as solved where the
-    frames decide the skin around it (the fingers' sides between a palm and a back both seen, where
-    the tone boundary runs)."""
+    frames decide the skin around it. The seen skin's edge is where it turns from the camera, so it is
+    seen edge-on nearly everywhere: a clip that shows palm and back loses some of its tone boundary
+    there too (docs/real_footage.md)."""
     trust = np.asarray(trust, dtype=np.float64)
     hops = max(reach / graph.texel_width, 1.0)
     distance = hops_from_unseen(trust, graph, limit=hops + 1.0)
