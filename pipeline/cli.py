@@ -310,10 +310,10 @@ def build_parser():
     fit.add_argument("--albedo-fill", choices=("decided", "feathered", "edge"), default=None,   # settings.ALBEDO_FILL_CHOICES
                      help="what the fill keeps of the solved albedo: every texel the frames decide, as solved (decided, "
                           "default); each texel as far as pixels that see its skin squarely decide it, so a side the "
-                          "clip only showed edge-on blends into the fill (feathered); or that blending only within 4 mm "
-                          "of the fill (edge). On a real clip that never shows the palm both remove a dark line along "
-                          "the hand's side; on the phone-like clip they cost new poses 0.5 dB (feathered, one seed) and "
-                          "0.3-0.4 dB (edge, 3 seeds; docs/real_footage.md)")
+                          "clip only showed edge-on blends into the fill (feathered); or the skin seen only edge-on "
+                          "blended within 4 mm of the fill (edge). On a real clip that never shows the palm both remove "
+                          "a dark line along the hand's side; on the phone-like clip they cost new poses 0.5 dB "
+                          "(feathered, one seed) and 0.13-0.20 dB (edge, 3 seeds; docs/real_footage.md)")
     fit.add_argument("--size-anchor", choices=("initial", "alignment"), default=None,
                      help="the size the size_prior term holds: the hand's where the alignment left it (alignment, "
                           "default; the term silent in the alignment), or the initial estimate's (initial; give it "

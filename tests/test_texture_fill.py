@@ -190,7 +190,12 @@ def test_texels_seen_only_edge_on_are_trusted_less_than_those_seen_squarely(tmp_
     problem.settings.albedo_fill = "edge"
     fitting.fill_albedo(problem, problem)
     assert filled["reach"] == fitting.EDGE_BLEND_REACH
-    torch.testing.assert_close(filled["trust"], trust)
+    # at its own, lower squarely-seen share: trusting every texel at least as far as "feathered" does
+    edge_ramp = (share / fitting.EDGE_SQUARE_SHARE).clamp(0, 1)
+    torch.testing.assert_close(filled["trust"][decided], (edge_ramp * edge_ramp * (3 - 2 * edge_ramp))[decided],
+                               rtol=0, atol=1e-4)
+    assert (filled["trust"][~decided] == 0).all() and (filled["trust"] >= trust - 1e-6).all()
+    assert (filled["trust"][decided] > trust[decided] + 0.1).any()
 
 
 def test_blending_kept_to_the_fills_edge_falls_off_linearly_with_the_hops_to_it():

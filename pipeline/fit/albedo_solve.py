@@ -452,16 +452,16 @@ def decided_texels(problem, batch_size=SOLVE_BATCH, frames=None):
     return texel_coverage(problem, batch_size, frames, squarely_seen=False)[0] >= MIN_COVERAGE
 
 
-def texel_trust(problem, batch_size=SOLVE_BATCH, frames=None):
+def texel_trust(problem, batch_size=SOLVE_BATCH, frames=None, square_share=SQUARE_SHARE):
     """(T, T) in [0, 1]: how far the fill keeps each texel as the solve left it (texture_fill.fill_unseen):
     0 where the frames do not decide it, 1 where pixels that see its skin squarely give at least
-    SQUARE_SHARE of its weight (as they weigh in its solved colour), smoothly between. A texel seen
+    `square_share` of its weight (as they weigh in its solved colour), smoothly between. A texel seen
     mostly edge-on (the hand's side in a clip that never turns it to the camera) holds the rim's light
     (the mask's edge, a pose a pixel off, the sheen at grazing angles): kept as solved, it drew a dark
     jagged line where the solved texels met the fill on a real clip (docs/real_footage.md). A share,
     not an amount: the same at any frame size and clip length."""
     coverage, squarely = texel_coverage(problem, batch_size, frames)
-    trust = smoothstep(squarely / coverage.clamp(min=1e-12) / SQUARE_SHARE)
+    trust = smoothstep(squarely / coverage.clamp(min=1e-12) / square_share)
     return torch.where(coverage >= MIN_COVERAGE, trust, torch.zeros_like(trust))
 
 

@@ -136,12 +136,12 @@ class FitSettings:
     albedo_openness: str = "on"
     # what the fill keeps of the solved albedo (texture_fill.fill_unseen): "decided", the default, every texel the
     # frames decide kept as solved; "feathered", each texel as far as pixels that see its skin squarely decide it
-    # (albedo_solve.texel_trust: a texel seen mostly edge-on blends into the fill); or "edge", that blending kept to
-    # within fitting.EDGE_BLEND_REACH of the fill. On a real clip that never turns the palm to the camera,
-    # "decided" draws a dark jagged line along the hand's side where the solved texels meet the fill, and both
-    # others remove it; on the phone-like clip's 3 seeds "edge" cost new poses 0.31-0.41 dB and the albedo's
-    # sharpness fell from 0.63-0.65 to 0.58 (seed 0: "feathered" 0.52 dB): the decided skin's edge is seen
-    # edge-on all along, and there it holds the tone boundary (docs/real_footage.md)
+    # (albedo_solve.texel_trust: a texel seen mostly edge-on blends into the fill); or "edge", only the skin seen
+    # almost only edge-on (fitting.EDGE_SQUARE_SHARE) blended, within fitting.EDGE_BLEND_REACH of the fill. On a
+    # real clip that never turns the palm to the camera, "decided" draws a dark jagged line along the hand's side
+    # where the solved texels meet the fill, and both others remove it; on the phone-like clip's 3 seeds "edge"
+    # cost new poses 0.13-0.20 dB (seed 0: "feathered" 0.52): the decided skin's edge is seen edge-on all along,
+    # and there it holds the tone boundary (docs/real_footage.md)
     albedo_fill: str = "decided"
     # frames kept out of the fit and scored as it runs: the best state is written (validation.py). Off until it
     # is shown to help: with `fast` on the demo clip (3 seeds) it left held-out PSNR level (27.76 dB both), joints
