@@ -11,7 +11,7 @@ from synth_clips import exact_clip
 from pipeline.fit import fitting
 from pipeline.fit.checkpoint import CHECKPOINT_FILE, FitState, load_checkpoint
 from pipeline.fit.energy import batch_energy
-from pipeline.fit.energy_terms import ENERGY_TERMS, SHADED, EnergyTerm, measured_size, terms_for
+from pipeline.fit.energy_terms import ENERGY_TERMS, SHADED, EnergyTerm, measured_size, scene_depth, terms_for
 from pipeline.fit.problem import build_problem
 from pipeline.fit.schedule import Schedule, StageKind, StageSpec
 from pipeline.fit.stage_run import StageRun
@@ -293,6 +293,40 @@ def test_a_later_stage_run_outside_a_fit_holds_the_size_where_the_shape_stands(t
         problem.avatar.betas[0] += 1.0      # the scale: 5% larger
     _, terms = run.energy(torch.arange(2), backward=False)
     assert float(terms["size_prior"]) > 1.0 and float(problem.term_data["size_prior"]) == held
+
+
+def test_the_scene_depth_is_the_geometric_mean_of_the_frames_depths():
+    translations = torch.tensor([[0.1, 0.0, 0.2], [0.0, -0.1, 0.8], [0.3, 0.2, 0.5]], dtype=torch.float64)
+    assert float(scene_depth(translations)) == pytest.approx((0.2 * 0.8 * 0.5) ** (1 / 3), rel=1e-12)
+
+
+def test_the_depth_prior_holds_the_scene_where_the_alignment_left_it(tiny_clip, tmp_path, monkeypatch):
+    """A larger hand farther away looks the same: a test term pulls every frame 5% nearer than the
+    initial estimate after the alignment. Without the depth prior the scene follows it; with it,
+    the scene's depth stays within 0.5% of where the alignment left it (the report's depth_anchor)."""
+    weights = settings_for("fast", 4).weights
+
+    def initial_depths(problem):
+        return torch.as_tensor(problem.initial.transl[problem.clip.frames, 2]).to(problem.avatar.transl)
+
+    def _nearer(batch):
+        if batch.stage.kind is StageKind.ALIGN:
+            return batch.problem.avatar.betas.new_zeros(())
+        depths = batch.problem.avatar.transl[:, 2]
+        return ((depths - 0.95 * initial_depths(batch.problem)) / 0.05).square().mean()
+
+    pull = EnergyTerm("pull_nearer", 1.0, frozenset({StageKind.ALIGN, StageKind.GEOMETRY, StageKind.JOINT}), _nearer)
+    monkeypatch.setitem(ENERGY_TERMS, pull.name, pull)
+    change = {}
+    for weight in (0.0, 1.0):
+        out = tmp_path / str(weight)
+        report = fitting.fit(tiny_clip, out, weights={**weights, "depth_prior": weight}, max_steps=25, **FIT)
+        depth = float(scene_depth(load_checkpoint(out / CHECKPOINT_FILE, "cpu").avatar["transl"]))
+        assert (report["depth_anchor"] is None) == (weight == 0)      # nothing held where it is not weighted
+        change[weight] = depth / (report["depth_anchor"] or float(scene_depth(torch.as_tensor(
+            read_initial_estimate(tiny_clip).transl)))) - 1
+    assert change[0.0] < -0.01, change      # the pull took the unheld scene nearer (measured: -1.6%)
+    assert abs(change[1.0]) < min(0.005, 0.3 * abs(change[0.0])), change     # held (measured: -0.3%)
 
 
 def test_settings_saved_before_the_size_was_held_by_default_keep_the_size_prior_as_it_was():

@@ -36,8 +36,9 @@ class BatchWorkers:
             parameter.data.share_memory_()
         # the keypoint anchor too: a frame started again from its neighbours moves its anchor (lost_frames.py)
         parameters["anchor_keypoints"] = problem.anchor_keypoints.share_memory_()
-        if "size_prior" in problem.term_data:     # and the size it holds, set after the alignment (size_anchor)
-            parameters["size_prior"] = problem.term_data["size_prior"].share_memory_()
+        for held in ("size_prior", "depth_prior"):     # and the size and depth held, set after the alignment
+            if held in problem.term_data:
+                parameters[held] = problem.term_data[held].share_memory_()
         context = multiprocessing.get_context("spawn")
         self.connections, self.processes = [], []
         for _ in range(count):
@@ -105,8 +106,8 @@ def _serve(connection, recipe, parameters):
         for name, shared in parameters.items():
             if name == "anchor_keypoints":
                 problem.anchor_keypoints = shared
-            elif name == "size_prior":
-                problem.term_data["size_prior"] = shared
+            elif name in ("size_prior", "depth_prior"):
+                problem.term_data[name] = shared
             elif name in own:
                 own[name].data = shared
             else:   # a switch (a buffer)

@@ -75,6 +75,7 @@ class FitState:
     restarted: dict | None = None       # lost_frames.restart_lost_frames' figures, once it has run (after the alignment)
     light_search: dict | None = None    # light_search.search_light's figures, once it has run (before the light moves)
     size_anchor: float | None = None    # the size the size_prior term holds with size_anchor "alignment", once set
+    depth_anchor: float | None = None   # the scene's depth the depth_prior term holds (where the alignment left it)
     after_stages_seconds: dict = dataclasses.field(default_factory=dict)   # the work after the stages, by part
     # the figures of each pass of the albedo's solves and fill after the first (fitting.solve_and_fill_again)
     albedo_passes: list = dataclasses.field(default_factory=list)

@@ -247,6 +247,28 @@ def _size_prior(batch):
                                   problem.settings.size_tolerance)
 
 
+def scene_depth(translations):
+    """The scene's depth: the geometric mean of the fitted frames' depths (F, 3) translations."""
+    return translations[:, 2].clamp(min=1e-3).log().mean().exp()
+
+
+def _depth_placeholder(problem):
+    """NaN, read by no stage: the alignment sets the depth, and the first stage after it fills this
+    in place with the depth it left (stage_run.anchor_size; batch workers share the tensor)."""
+    return problem.avatar.transl.new_full((), float("nan")).detach()
+
+
+# ours: the scene's depth (scene_depth) held where the alignment left it. A larger hand farther away looks the
+# same: holding the shape's scale (size_prior) still lets the other shape parameters and the depths shrink or
+# grow the whole scene together; holding the depth, the frames' silhouettes decide every part's size at it
+@_term("depth_prior", 0.0, _GEOMETRY, prepare=_depth_placeholder)
+def _depth_prior(batch):
+    problem = batch.problem
+    if batch.stage.kind is StageKind.ALIGN:
+        return problem.avatar.betas.new_zeros(())      # nothing held yet: the alignment sets the depth
+    return losses.size_prior_loss(scene_depth(problem.avatar.transl), problem.term_data["depth_prior"], 0.0)
+
+
 # --- appearance
 
 @_term("photometric", 1.0, _APPEARANCE | {StageKind.HELD_OUT}, needs=(SHADED,))

@@ -127,7 +127,7 @@ def write_outputs(out, problem, state, held_out=(), estimate=None, validation_fr
         "output_seconds": time.time() - start, "after_stages_seconds": state.after_stages_seconds,
         "final_losses": last, "metrics": scores,
         "shadows": dataclasses.asdict(state.shadows), "events": state.events, "restarted_frames": state.restarted,
-        "light_search": state.light_search, "size_anchor": state.size_anchor,
+        "light_search": state.light_search, "size_anchor": state.size_anchor, "depth_anchor": state.depth_anchor,
         "perceptual_term": problem.perceptual_name, "ambient": avatar.ambient.item(),
         "light_position": avatar.light_position.detach().cpu().tolist(),
         "appearance": "known (frozen)" if problem.known_appearance else "fitted", "texture_fill": state.texture_fill,

@@ -17,7 +17,7 @@ import torch
 from .avatar import APPEARANCE, PER_FRAME, POSE
 from .checkpoint import FitState
 from .energy import batch_energy
-from .energy_terms import measured_size
+from .energy_terms import measured_size, scene_depth
 from .problem import FitProblem
 from .schedule import StageKind, StageSpec
 
@@ -114,6 +114,11 @@ def anchor_size(problem, state):
     """With size_anchor "alignment" and the size prior weighted: the size it holds in the stages
     after the alignment, the hand's as the alignment left it (set when the first of them starts,
     kept in the state so that a resumed fit holds the same)."""
+    if "depth_prior" in problem.term_data:
+        if state.depth_anchor is None:
+            with torch.no_grad():
+                state.depth_anchor = float(scene_depth(problem.avatar.transl))
+        problem.term_data["depth_prior"].fill_(state.depth_anchor)
     if problem.settings.size_anchor != "alignment" or "size_prior" not in problem.term_data:
         return
     if state.size_anchor is None:
