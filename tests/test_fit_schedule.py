@@ -276,9 +276,10 @@ def test_the_size_prior_measured_on_the_palm_or_the_scale_leaves_the_fingers_len
 
 def test_a_later_stage_run_outside_a_fit_holds_the_size_where_the_shape_stands(tiny_clip):
     """A joint-stage run started without a fit before it (a benchmark's replay, the step costs'
-    calibration, a test) anchors the size prior itself: its energy is finite, the size held is the
-    one the shape has then, and a shape moved off it is pulled back."""
-    settings = settings_for("fast", 4, resolution=96, texture_size=64)
+    calibration, a test) anchors the size and depth priors itself: their energy is finite, the size
+    and depth held are the ones the avatar has then, and an avatar moved off them is pulled back."""
+    settings = settings_for("fast", 4, resolution=96, texture_size=64,      # the depth prior is off by default
+                            weights={**settings_for("fast", 4).weights, "depth_prior": 1.0})
     problem = build_problem(tiny_clip, settings, np.arange(4), "cpu")
     schedule = settings.schedule()
     stage = next(stage for stage in schedule if stage.kind is StageKind.JOINT)
@@ -293,6 +294,13 @@ def test_a_later_stage_run_outside_a_fit_holds_the_size_where_the_shape_stands(t
         problem.avatar.betas[0] += 1.0      # the scale: 5% larger
     _, terms = run.energy(torch.arange(2), backward=False)
     assert float(terms["size_prior"]) > 1.0 and float(problem.term_data["size_prior"]) == held
+    # the scene's depth alike (the depth prior, where it is weighted)
+    assert run.state.depth_anchor == pytest.approx(float(scene_depth(problem.avatar.transl.detach())))
+    assert float(terms["depth_prior"]) == pytest.approx(0.0, abs=1e-9)
+    with torch.no_grad():
+        problem.avatar.transl[:, 2] *= 1.05
+    _, terms = run.energy(torch.arange(2), backward=False)
+    assert float(terms["depth_prior"]) == pytest.approx((100 * np.log(1.05)) ** 2, rel=1e-3)
 
 
 def test_the_scene_depth_is_the_geometric_mean_of_the_frames_depths():
@@ -331,14 +339,15 @@ def test_the_depth_prior_holds_the_scene_where_the_alignment_left_it(tiny_clip, 
 
 def test_settings_saved_before_the_size_was_held_by_default_keep_the_size_prior_as_it_was():
     """A checkpoint's settings from before the size prior existed (no weight for it, no anchor,
-    band or measure) load with it off and its old anchor, band and measure, so a resumed fit goes
-    on as it began; settings saved today keep the hold."""
+    band or measure) load with it off and its old anchor, band and measure, and from before the
+    depth prior with that off, so a resumed fit goes on as it began; settings saved today keep the hold."""
     held = settings_for("fast", 30)
     older = {k: v for k, v in vars(held).items() if k not in ("size_anchor", "size_tolerance", "size_measure")}
-    older["weights"] = {k: v for k, v in held.weights.items() if k != "size_prior"}
+    older["weights"] = {k: v for k, v in held.weights.items() if k not in ("size_prior", "depth_prior")}
     loaded = FitSettings.from_dict(older)
     assert (loaded.weights["size_prior"], loaded.size_anchor, loaded.size_tolerance, loaded.size_measure) == \
         (0.0, "initial", SIZE_TOLERANCE, "hand")
+    assert loaded.weights["depth_prior"] == 0.0
     assert loaded.weights["silhouette"] == held.weights["silhouette"]
     again = FitSettings.from_dict(vars(held))
     assert (again.weights["size_prior"], again.size_anchor, again.size_tolerance, again.size_measure) == \

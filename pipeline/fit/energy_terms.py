@@ -258,9 +258,13 @@ def _depth_placeholder(problem):
     return problem.avatar.transl.new_full((), float("nan")).detach()
 
 
-# ours: the scene's depth (scene_depth) held where the alignment left it. A larger hand farther away looks the
-# same: holding the shape's scale (size_prior) still lets the other shape parameters and the depths shrink or
-# grow the whole scene together; holding the depth, the frames' silhouettes decide every part's size at it
+# ours, off by default (weight 0): the scene's depth (scene_depth) held where the alignment left it, as the size
+# prior holds the shape's scale. A larger hand farther away looks the same: with the scale alone held, the other
+# shape parameters and the depths still move the whole scene together in the joint stage. Held, on the phone-like
+# clip's 3 seeds the size came right (1.0-1.7% small -> 0.1-0.3%) and new poses gained 0.7-1.25 dB; but on the
+# demo clip the alignment leaves the depth where MediaPipe put it (6% far), the joint stage's drift is what brings
+# the size near the truth, and held there the hand ended 4.4% large on 3 seeds: new poses -1.4 to -1.8 dB
+# (docs/fidelity.md, "The scene's depth held where the alignment left it")
 @_term("depth_prior", 0.0, _GEOMETRY, prepare=_depth_placeholder)
 def _depth_prior(batch):
     problem = batch.problem

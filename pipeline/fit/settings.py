@@ -273,6 +273,8 @@ class FitSettings:
         values.setdefault("size_measure", "hand")
         if "weights" in values and "size_prior" not in values["weights"]:
             values["weights"] = {**values["weights"], "size_prior": 0.0}
+        if "weights" in values and "depth_prior" not in values["weights"]:   # saved before the depth prior existed
+            values["weights"] = {**values["weights"], "depth_prior": 0.0}
         unknown = sorted(set(values) - {field.name for field in dataclasses.fields(cls)})
         if unknown:
             raise ValueError(f"settings this version does not know: {', '.join(unknown)}")
