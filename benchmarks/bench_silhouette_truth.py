@@ -57,7 +57,12 @@ def main():
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    info = seq.validate_sequence_folder(args.sequence)
+    try:
+        info = seq.validate_sequence_folder(args.sequence)
+        if args.avatar:
+            av.read_avatar_json(args.avatar)
+    except (seq.SequenceFolderError, av.AvatarFolderError) as error:
+        parser.error(str(error))
     if not info.ground_truth:
         parser.error(f"{args.sequence} has no ground truth (a synthetic clip's gt.npz)")
     truth = seq.read_ground_truth(args.sequence / info.ground_truth)
