@@ -113,7 +113,8 @@ def stage_has_work(problem: FitProblem, stage: StageSpec) -> bool:
 def anchor_size(problem, state):
     """With size_anchor "alignment" and the size prior weighted: the size it holds in the stages
     after the alignment, the hand's as the alignment left it (set when the first of them starts,
-    kept in the state so that a resumed fit holds the same)."""
+    kept in the state so that a resumed fit holds the same); with the depth prior weighted, the
+    scene's depth (scene_depth) alike."""
     if "depth_prior" in problem.term_data:
         if state.depth_anchor is None:
             with torch.no_grad():
