@@ -6,11 +6,12 @@ the true mesh 1% larger about its keypoints' centre (what 1% of size does to the
 
     .venv/bin/python benchmarks/bench_silhouette_truth.py SEQ [--avatar AVATAR] [--resolution 256] [--threads 1]
 
-Prints, for each, the outline's mean and median offset from the masks' outline (pixels; positive: drawn larger;
-the rendered area minus the mask's, over the mask's outline, its run along the frame's border left
-out), its range over the frames, and the IoU (mean and median: a frame a fit lost weighs on the mean). The true mesh should sit on its masks to a small
-fraction of a pixel (the renderer and the masks agree); the template's offset, read against the 1%
-line, is the size the silhouette asks of an avatar that lacks the personal offsets.
+Prints, for each, the outline's mean and median offset from the masks' outline (pixels; positive:
+drawn larger; the rendered area minus the mask's, over the mask's outline, its run along the
+frame's border left out), its range over the frames, and the IoU (mean and median: a frame a fit
+lost weighs on the mean). The true mesh should sit on its masks to a small fraction of a pixel
+(the renderer and the masks agree); the template's offset, read against the 1% line, is the size
+the silhouette asks of an avatar that lacks the personal offsets.
 """
 from __future__ import annotations
 
@@ -25,7 +26,6 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from pipeline.evaluate.fidelity import load_model_data  # noqa: E402
-from pipeline.avatar_render import load_avatar  # noqa: E402
 from pipeline.fit.clip_data import load_clip  # noqa: E402
 from pipeline.formats import avatar_folder as av  # noqa: E402
 from pipeline.formats import sequence_folder as seq  # noqa: E402
@@ -59,8 +59,8 @@ def main():
     torch.set_num_threads(args.threads)
     try:
         info = seq.validate_sequence_folder(args.sequence)
-        if args.avatar:
-            av.read_avatar_json(args.avatar)
+        avatar = av.read_avatar_folder(args.avatar) if args.avatar else None
+        poses = av.read_poses(args.avatar) if args.avatar else None
     except (seq.SequenceFolderError, av.AvatarFolderError) as error:
         parser.error(str(error))
     if not info.ground_truth:
@@ -88,14 +88,12 @@ def main():
     print(f"{args.sequence}: {len(frames)} frames at {clip.width} x {clip.height} px")
     for name, points in cases.items():
         report(name, *outline_offsets(points, mesh, clip))
-    if args.avatar:
-        rig, _, files = load_avatar(args.avatar)
-        poses = av.read_poses(args.avatar)
+    if avatar is not None:
         with torch.no_grad():
-            fitted = rig(pose=tensor(poses.pose), global_orient=tensor(poses.global_orient),
+            fitted = HandModel(avatar.rig)(pose=tensor(poses.pose), global_orient=tensor(poses.global_orient),
                          transl=tensor(poses.transl)).vertices
         report(f"the avatar {args.avatar.name} in its {len(poses)} poses",
-               *outline_offsets(fitted, RenderMesh.from_model_data(files.rig),
+               *outline_offsets(fitted, RenderMesh.from_model_data(avatar.rig),
                                 load_clip(args.sequence, resolution=args.resolution, frames=poses.frames)))
 
 
