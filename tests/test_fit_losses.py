@@ -226,30 +226,6 @@ def test_the_translations_as_the_camera_sees_them_are_blind_to_the_scenes_scale(
         assert losses.temporal_global_loss(rotations, still, times, reference_depth=0.5).item() == pytest.approx(
             losses.temporal_global_loss(rotations, still, times).item(), rel=5e-3)
 
-
-def test_the_translations_in_a_scene_held_at_its_depth_are_blind_to_its_scale_alone():
-    """translations_as "scene": the translations in metres of the scene brought to the reference
-    depth (its frames' geometric mean depth): the jolted path scaled by 1.1 about the camera costs
-    what it did; a path already at the reference depth costs what it does in metres, the scene's
-    depth moved by a jolt aside (one frame 1 mm nearer moves it 0.04%), so that one frame's depth
-    is not measured in log depth as "camera" measures it."""
-    times = torch.tensor([0, 1, 2, 3, 4])
-    rotations = torch.eye(3).expand(5, 3, 3)
-    path = torch.stack([0.002 * times, 0 * times, 0.5 + 0 * times], 1).double()
-    path[2, 0] += 0.004
-    path[3, 2] -= 0.006
-    reference = float(losses.scene_depth(path))
-    scene = losses.temporal_global_loss(rotations, path, times, reference_depth=reference, translations_as="scene")
-    assert losses.temporal_global_loss(rotations, path * 1.1, times, reference_depth=reference,
-                                       translations_as="scene").item() == pytest.approx(scene.item(), rel=1e-9)
-    assert scene.item() == pytest.approx(losses.temporal_global_loss(rotations, path, times).item(), rel=1e-12)
-    still = torch.tensor([[0.0, 0.0, 0.5]], dtype=torch.float64).repeat(5, 1)
-    still[2, 2] -= 1e-3
-    held = losses.temporal_global_loss(rotations, still, times, reference_depth=0.5, translations_as="scene")
-    assert held.item() == pytest.approx(losses.temporal_global_loss(rotations, still, times).item(), rel=1e-3)
-    assert losses.scene_depth(still).item() == pytest.approx(0.5 * (0.499 / 0.5) ** 0.2, rel=1e-12)
-
-
 def test_coarse_displacements_are_carried_to_every_subdivided_point():
     """displacement_grid "coarse": one displacement per unsubdivided vertex; each subdivided
     point moves along its rest normal by the mean of its parents', so a constant field is the

@@ -19,7 +19,6 @@ from ..handmodel.rotations import axis_angle_to_matrix
 from ..render.rasterize import project
 from . import losses
 from .forearm_mask import MIDDLE_KNUCKLE, forearm_targets
-from .losses import scene_depth
 from .schedule import StageKind
 
 # what a term can need from a batch beyond the silhouette render (the energy makes only what is needed)
@@ -125,22 +124,18 @@ def _temporal_pose(batch):
 
 
 def _reference_depth(problem):
-    """The initial estimate's depth over the fitted frames (metres), when the translations' smoothness
-    is measured blind to the scene's scale (settings.translation_smoothness "camera": their mean;
-    "scene": the scene's depth, losses.scene_depth)."""
-    measure = problem.settings.translation_smoothness
-    if measure == "metres":
+    """The initial estimate's mean depth over the fitted frames (metres), when the translations'
+    smoothness is measured as the camera sees them (settings.translation_smoothness "camera")."""
+    if problem.settings.translation_smoothness != "camera":
         return None
-    initial = torch.as_tensor(problem.initial.transl[problem.clip.frames], dtype=torch.float64)
-    return float(initial[:, 2].mean() if measure == "camera" else scene_depth(initial))
+    return float(problem.initial.transl[problem.clip.frames, 2].mean())
 
 
 @_term("temporal_global", 1.0, _GEOMETRY, prepare=_reference_depth)
 def _temporal_global(batch):
     avatar = batch.problem.avatar
     return losses.temporal_global_loss(axis_angle_to_matrix(avatar.global_orient), avatar.transl, avatar.frame_numbers,
-                                       reference_depth=batch.problem.term_data.get("temporal_global"),
-                                       translations_as=batch.problem.settings.translation_smoothness)
+                                       reference_depth=batch.problem.term_data.get("temporal_global"))
 
 
 @_term("displacement", 2.0, _SURFACE)
@@ -250,6 +245,11 @@ def _size_prior(batch):
         return problem.avatar.betas.new_zeros(())      # nothing held yet: the alignment sets the size
     return losses.size_prior_loss(measured_size(problem, problem.avatar.betas), problem.term_data["size_prior"],
                                   problem.settings.size_tolerance)
+
+
+def scene_depth(translations):
+    """The scene's depth: the geometric mean of the fitted frames' depths (F, 3) translations."""
+    return translations[:, 2].clamp(min=1e-3).log().mean().exp()
 
 
 def _depth_placeholder(problem):

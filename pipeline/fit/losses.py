@@ -170,11 +170,6 @@ def environment_realisable_loss(coefficients, ambient):
     return torch.nn.functional.relu(-radiance).square().mean()
 
 
-def scene_depth(translations):
-    """The scene's depth: the geometric mean of the fitted frames' depths (F, 3) translations."""
-    return translations[:, 2].clamp(min=1e-3).log().mean().exp()
-
-
 def camera_relative_translations(translations, reference_depth):
     """Translations (F, 3) as the camera sees them, in metres at `reference_depth` (a constant):
     (x / z, y / z, log z) times that depth. A whole scene scaled about the camera (a larger hand
@@ -184,29 +179,17 @@ def camera_relative_translations(translations, reference_depth):
     return torch.cat([translations[:, :2] / depth, depth.log()], 1) * reference_depth
 
 
-def scene_relative_translations(translations, reference_depth):
-    """Translations (F, 3) in metres of a scene whose depth (scene_depth) is `reference_depth`
-    (a constant): the whole scene scaled about the camera leaves them as they were, while one
-    frame's step towards the camera costs what it does in metres."""
-    return translations * (reference_depth / scene_depth(translations))
-
-
-TRANSLATION_MEASURES = {"camera": camera_relative_translations, "scene": scene_relative_translations}
-
-
-def temporal_global_loss(rotations, translations, times, translation_unit=0.01, reference_depth=None,
-                         translations_as="camera"):
+def temporal_global_loss(rotations, translations, times, translation_unit=0.01, reference_depth=None):
     """Mean squared acceleration of the hand's global rotation matrices (F, 3, 3) and
     translations (F, 3) (in units of 1 cm) per frame^2: the whole hand may turn fast but smoothly.
     Rotation matrices instead of axis-angle vectors: no jump at 180 degrees. The acceleration
     at frame i is the change of velocity over half the span (t[i+1] - t[i-1]). With
-    `reference_depth` (metres), the translations are measured blind to the whole scene's scale,
-    `translations_as` a key of TRANSLATION_MEASURES: metres favour a nearer, smaller hand, whose
-    steps are shorter."""
+    `reference_depth` (metres), the translations are measured as the camera sees them
+    (camera_relative_translations): metres favour a nearer, smaller hand, whose steps are shorter."""
     if len(rotations) < 3:
         return rotations.new_zeros(())
     if reference_depth is not None:
-        translations = TRANSLATION_MEASURES[translations_as](translations, reference_depth)
+        translations = camera_relative_translations(translations, reference_depth)
     half_span = ((times[2:] - times[:-2]).to(rotations.dtype) / 2).clamp(min=1)
 
     def acceleration(values):

@@ -7,7 +7,7 @@ import math
 
 from ..formats import colour_model
 from .energy_terms import ENERGY_TERMS, SIZE_MEASURES, default_weights
-from .losses import SIZE_TOLERANCE, TRANSLATION_MEASURES
+from .losses import SIZE_TOLERANCE
 from .schedule import Schedule, StageKind
 
 # the default energy weights, one per registered term (energy_terms.py: Table C.1 and ours)
@@ -15,8 +15,6 @@ WEIGHTS = default_weights()
 ALBEDO_FILL_CHOICES = ("decided", "feathered", "edge")   # FitSettings.albedo_fill
 # FitSettings.occlusion: in the stages and after them, after them only, not at all
 OCCLUSION_CHOICES = ("on", "after", "off")
-# FitSettings.translation_smoothness: in metres, or blind to the whole scene's scale (losses.TRANSLATION_MEASURES)
-TRANSLATION_SMOOTHNESS = ("metres", *TRANSLATION_MEASURES)
 
 
 # settings that earlier versions stored; the step costs are now measured (estimate.py)
@@ -171,9 +169,7 @@ class FitSettings:
     size_measure: str = "scale"
     # how the temporal term measures the hand's translations: "metres", as the camera's frame holds them, or
     # "camera", as the camera sees them (image position and log depth, losses.camera_relative_translations), blind
-    # to the whole scene's scale, which metres are not: they favour a nearer, smaller hand; or "scene", in metres of
-    # a scene held at the initial estimate's depth (losses.scene_relative_translations), blind to the scene's scale
-    # while one frame's depth costs what it does in metres
+    # to the whole scene's scale, which metres are not: they favour a nearer, smaller hand
     # On the phone-like clip (2 seeds) the size did not move and the joints lost 0.12-0.18 mm: off (docs/fidelity.md)
     translation_smoothness: str = "metres"
     weights: dict = dataclasses.field(default_factory=default_weights)
@@ -196,9 +192,8 @@ class FitSettings:
             raise ValueError(f"light_search must be 'on' or 'off', got {self.light_search!r}")
         if self.size_anchor not in ("initial", "alignment"):
             raise ValueError(f"size_anchor must be 'initial' or 'alignment', got {self.size_anchor!r}")
-        if self.translation_smoothness not in TRANSLATION_SMOOTHNESS:
-            raise ValueError(f"translation_smoothness must be one of {', '.join(map(repr, TRANSLATION_SMOOTHNESS))}, "
-                             f"got {self.translation_smoothness!r}")
+        if self.translation_smoothness not in ("metres", "camera"):
+            raise ValueError(f"translation_smoothness must be 'metres' or 'camera', got {self.translation_smoothness!r}")
         if self.size_measure not in SIZE_MEASURES:
             raise ValueError(f"size_measure must be one of {', '.join(map(repr, SIZE_MEASURES))}, got {self.size_measure!r}")
         if not 0 <= self.size_tolerance < 1:
