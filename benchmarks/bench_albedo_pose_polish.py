@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bench_albedo_pose_polish.py FIT SEQ OUT [--steps 150] [--move-shape]
         [--light-size] [--texture-size 512] [--solve-sequence SEQ_LARGER --solve-resolution 896] [--checkpoint]
-        [--fit-options JSON]
+        [--true-light] [--fit-options JSON]
 
 The fit's work after the stages done again on its final state (fitting._after_the_stages: the
 albedo and room light solved from the working frames, then the albedo alone from the frames at
@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import shutil
 import sys
 import time
@@ -53,6 +54,7 @@ from pipeline.fit.schedule import Schedule, StageKind, StageSpec  # noqa: E402
 from pipeline.fit.stage_run import StageRun  # noqa: E402
 from pipeline.fit.texel_footprint import fitting_texture_size, pixel_footprint  # noqa: E402
 from pipeline.formats import avatar_folder as av  # noqa: E402
+from pipeline.formats import sequence_folder as seq  # noqa: E402
 from pipeline.formats.png_file import write_png  # noqa: E402
 
 SHAPE = ("betas", "displacement")
@@ -74,14 +76,32 @@ def replay_problem(fit, sequence, texture_size=None, solve_resolution=None, fit_
     return problem, bool(saved.state.shadows.on)
 
 
+def put_light_at_truth(avatar, sequence):
+    """Move the avatar's point light to the synthetic clip's own (gt.npz's first light, camera frame) and
+    give it that light's size: the disc of its square's area seen from the hand's centre (the mean
+    of the fitted frames' translations). Returns (position, angular radius in degrees)."""
+    info = seq.read_sequence_info(sequence)
+    lamp = json.loads(str(np.load(Path(sequence) / info.ground_truth)["light"]))["lights"][0]
+    position = torch.as_tensor(lamp["position"], dtype=avatar.light_position.dtype)
+    distance = float((position - avatar.transl.detach().mean(0).to(position.dtype)).norm())
+    radius = math.atan(lamp.get("size_m", 0.0) / math.sqrt(math.pi) / distance)
+    with torch.no_grad():
+        avatar.light_position.copy_(position)
+        avatar.light_angle.fill_(radius)
+    return lamp["position"], math.degrees(radius)
+
+
 def polished(fit, sequence, steps, move_shape=False, seed=0, light_size=False, texture_size=None,
-             solve_resolution=None, fit_options=None):
+             solve_resolution=None, fit_options=None, true_light=False):
     """The fit's avatar after the work after the stages with `steps` polishing steps (and with
     `light_size`, the light's size decided first, as FitSettings.light_size "auto" does; with
-    `texture_size`, `solve_resolution` and `fit_options`, replay_problem's); seconds, the light size's decision
+    `texture_size`, `solve_resolution` and `fit_options`, replay_problem's; with `true_light`, the point
+    light put at the clip's own and held there, put_light_at_truth); seconds, the light size's decision
     (None without it), {"pixel_footprint", "fitting_texture_size", "solve_px"} of the finer solve's frames."""
     problem, shadows = replay_problem(fit, sequence, texture_size, solve_resolution, fit_options)
     started = time.perf_counter()
+    if true_light:
+        put_light_at_truth(problem.avatar, sequence)
     problem.avatar.occlusion = problem.settings.occlusion_drawn     # as fitting._after_the_stages draws it
     problem.avatar.measure_occlusion(exact=True)
     painting = frames_kept(frames_off_their_silhouettes(problem), len(problem.frames))   # as the fit leaves out
@@ -91,7 +111,8 @@ def polished(fit, sequence, steps, move_shape=False, seed=0, light_size=False, t
     if steps:
         solve_avatar_albedo(problem, shadows, frames=painting)
         kept = problem.frozen
-        problem.frozen = tuple(kept) + ("albedo", "normal_map") + (() if move_shape else SHAPE)
+        problem.frozen = tuple(kept) + ("albedo", "normal_map") + (() if move_shape else SHAPE) \
+            + (("light_position",) if true_light else ())
         stage = StageSpec(StageKind.JOINT, steps)
         run = StageRun(problem, stage, FitState.fresh(Schedule((stage,)), "on" if shadows else "off"),
                        torch.Generator().manual_seed(seed))
@@ -130,6 +151,8 @@ def main():
     parser.add_argument("--checkpoint", action="store_true",
                         help="write OUT's checkpoint.pt with the replayed avatar, so that `harp evaluate OUT SEQ` "
                              "scores its held-out frames")
+    parser.add_argument("--true-light", action="store_true",
+                        help="the point light put at the synthetic clip's own, with its size, and held there")
     parser.add_argument("--fit-options", type=json.loads, default={},
                         help="FitSettings fields (JSON) replacing the checkpoint's for the replay")
     args = parser.parse_args()
@@ -138,7 +161,7 @@ def main():
                                                  args.move_shape, light_size=args.light_size,
                                                  texture_size=args.texture_size,
                                                  solve_resolution=args.solve_resolution,
-                                                 fit_options=args.fit_options)
+                                                 fit_options=args.fit_options, true_light=args.true_light)
     shutil.copytree(args.fit, args.out, dirs_exist_ok=True)
     albedo = avatar.albedo.detach().clamp(0, 1).permute(1, 2, 0).cpu().numpy()
     write_png(args.out / av.ALBEDO_FILE, np.round(albedo * 255).astype(np.uint8))
@@ -149,6 +172,7 @@ def main():
     result = evaluate_fidelity(args.out, args.sequence)
     texture, poses = result["texture"], result["new_poses"]
     print(json.dumps({"fit": str(args.fit), "steps": args.steps, "move_shape": args.move_shape,
+                      "true_light": args.true_light,
                       "seconds": round(seconds, 1), "light_size": decision, "texture_size": albedo.shape[0],
                       **texels, f"sharpness_at_{COMPARED_SIZE}": round(sharpness_at(albedo, args.sequence), 3),
                       "new_poses_overlap": round(poses["psnr_overlap_mean"], 2),
