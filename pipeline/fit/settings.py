@@ -170,7 +170,9 @@ class FitSettings:
     # how the temporal term measures the hand's translations: "metres", as the camera's frame holds them, or
     # "camera", as the camera sees them (image position and log depth, losses.camera_relative_translations), blind
     # to the whole scene's scale, which metres are not: they favour a nearer, smaller hand
-    # On the phone-like clip (2 seeds) the size did not move and the joints lost 0.12-0.18 mm: off (docs/fidelity.md)
+    # On the phone-like clip's 3 seeds: new poses +0.2-1.6 dB with exact masks, held out +0.1-0.3 dB from the video
+    # alone, but the fitted frames 0.1-1.1 dB lower and the joints 0.03-0.13 mm worse on both paths; on the demo
+    # level: off (docs/fidelity.md)
     translation_smoothness: str = "metres"
     weights: dict = dataclasses.field(default_factory=default_weights)
     # {term: {stage name: factor}}: a term's weight in a stage, times this (energy_terms.EnergyTerm.stage_factors)
