@@ -79,7 +79,7 @@ def replay_problem(fit, sequence, texture_size=None, solve_resolution=None, fit_
 def put_light_at_truth(avatar, sequence):
     """Move the avatar's point light to the synthetic clip's own (gt.npz's first light, camera frame) and
     give it that light's size: the disc of its square's area seen from the hand's centre (the mean
-    of the fitted frames' translations). Returns (position, angular radius in degrees)."""
+    of the fitted frames' translations), as an angular radius. Returns (position, that radius in degrees)."""
     info = seq.read_sequence_info(sequence)
     lamp = json.loads(str(np.load(Path(sequence) / info.ground_truth)["light"]))["lights"][0]
     position = torch.as_tensor(lamp["position"], dtype=avatar.light_position.dtype)
@@ -101,7 +101,8 @@ def polished(fit, sequence, steps, move_shape=False, seed=0, light_size=False, t
     problem, shadows = replay_problem(fit, sequence, texture_size, solve_resolution, fit_options)
     started = time.perf_counter()
     if true_light:
-        put_light_at_truth(problem.avatar, sequence)
+        position, degrees = put_light_at_truth(problem.avatar, sequence)
+        print(f"the point light put at the clip's own, {position}, an angular radius of {degrees:.1f} degrees", file=sys.stderr)
     problem.avatar.occlusion = problem.settings.occlusion_drawn     # as fitting._after_the_stages draws it
     problem.avatar.measure_occlusion(exact=True)
     painting = frames_kept(frames_off_their_silhouettes(problem), len(problem.frames))   # as the fit leaves out
