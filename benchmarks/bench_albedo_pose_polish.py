@@ -102,7 +102,8 @@ def polished(fit, sequence, steps, move_shape=False, seed=0, light_size=False, t
     started = time.perf_counter()
     if true_light:
         position, degrees = put_light_at_truth(problem.avatar, sequence)
-        print(f"the point light put at the clip's own, {position}, an angular radius of {degrees:.1f} degrees", file=sys.stderr)
+        print(f"the point light put at the clip's own, {position}, an angular radius of {degrees:.1f} degrees",
+              file=sys.stderr)
     problem.avatar.occlusion = problem.settings.occlusion_drawn     # as fitting._after_the_stages draws it
     problem.avatar.measure_occlusion(exact=True)
     painting = frames_kept(frames_off_their_silhouettes(problem), len(problem.frames))   # as the fit leaves out
