@@ -81,7 +81,7 @@ def put_light_at_truth(avatar, sequence):
     give it that light's size: the disc of its square's area seen from the hand's centre (the mean
     of the fitted frames' translations), as an angular radius. Returns (position, that radius in degrees)."""
     info = seq.read_sequence_info(sequence)
-    lamp = json.loads(str(np.load(Path(sequence) / info.ground_truth)["light"]))["lights"][0]
+    lamp = seq.read_ground_truth(Path(sequence) / info.ground_truth).light["lights"][0]
     position = torch.as_tensor(lamp["position"], dtype=avatar.light_position.dtype)
     distance = float((position - avatar.transl.detach().mean(0).to(position.dtype)).norm())
     radius = math.atan(lamp.get("size_m", 0.0) / math.sqrt(math.pi) / distance)

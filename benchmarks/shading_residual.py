@@ -206,7 +206,7 @@ def main(argv=None):
     light_samples = None
     if args.true_light:
         info = seq.read_sequence_info(args.sequence)
-        lamp = json.loads(str(np.load(Path(args.sequence) / info.ground_truth)["light"]))["lights"][0]
+        lamp = seq.read_ground_truth(Path(args.sequence) / info.ground_truth).light["lights"][0]
         dtype = problem.avatar.light_position.dtype
         problem.avatar.light_position.data = torch.as_tensor(lamp["position"], dtype=dtype)
         if args.area_samples and lamp.get("size_m"):
