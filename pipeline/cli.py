@@ -107,7 +107,8 @@ def _fit(args):
                  known_appearance=args.known_appearance, observers=observers, max_steps=args.max_steps,
                  exposure=args.exposure, solve_albedo=args.solve_albedo, budget_seconds=args.budget,
                  validation_frames=args.validation_frames, workers=args.workers, environment=args.environment,
-                 specular=args.specular, light_size=args.light_size, colour_model=args.colour_model,
+                 specular=args.specular, light_size=args.light_size, light_falloff=args.light_falloff,
+                 colour_model=args.colour_model,
                  occlusion=args.occlusion,
                  restart_lost_frames=args.restart_lost_frames, albedo_facing=args.albedo_facing,
                  albedo_openness=args.albedo_openness, albedo_passes=args.albedo_passes, albedo_fill=args.albedo_fill,
@@ -271,6 +272,10 @@ def build_parser():
                           "(a lamp's shade, a window) once the stages are done and keeps the one whose shadows "
                           "explain the frames best (soft shadows in every render and in Blender's sun); off keeps a "
                           "point light. Only a fit with self-shadowing has shadows to soften (docs/fidelity.md)")
+    fit.add_argument("--light-falloff", choices=("on", "off"), default=None,
+                     help="the light's inverse-square falloff: on lights the nearer parts of the hand more, as a lamp "
+                          "or a window a metre away does; off (default) is as strong everywhere on the hand. The fit "
+                          "does not search the light's distance yet (docs/fidelity.md)")
     fit.add_argument("--colour-model", choices=("display", "linear"), default=None,
                      help="how the albedo and light make the frames' values: linear (default) decodes sRGB, shades "
                           "in linear light and encodes, as a camera and Blender do, so the bound avatar renders as "

@@ -389,6 +389,39 @@ def test_the_solve_takes_the_specular_sheen_off(problem):
     assert np.median(errors["baked"]) > 2 * np.median(errors["shiny"])
 
 
+def test_a_near_lights_falloff_is_taken_off_not_baked_in(problem):
+    """Frames drawn by a lamp a quarter of a metre from the hand, whose light falls off with the
+    square of the distance: solved with the falloff, the albedo is the one they were drawn with;
+    solved as if the lamp were far away, the nearer parts of the hand come out lighter."""
+    problem, truth = problem
+    avatar, frames = problem.avatar, problem.clip.images
+    saved = avatar.light_position.detach().clone()
+    everything = torch.arange(FRAMES)
+    try:
+        with torch.no_grad():
+            vertices, _ = avatar.posed(everything)
+            centre = vertices.mean((0, 1))
+            avatar.light_position.copy_(centre + 0.25 * torch.nn.functional.normalize(saved - centre, dim=0))
+            avatar.light_falloff = True
+            problem.clip.images = render(vertices, avatar.mesh, problem.clip.K, SIZE, SIZE, outputs=("rgb",),
+                                         appearance=dataclasses.replace(avatar.appearance(), albedo=torch.as_tensor(
+                                             truth, dtype=avatar.albedo.dtype)),
+                                         light=avatar.light(False, everything, vertices))["rgb"]
+        with_falloff, read = solved_albedo(problem, shadows=False)
+        avatar.light_falloff = False
+        baked, _ = solved_albedo(problem, shadows=False)
+    finally:
+        problem.clip.images = frames
+        avatar.light_falloff = False
+        with torch.no_grad():
+            avatar.light_position.copy_(saved)
+    read = read.numpy() & (problem.uv_mask.numpy() > 0)
+    errors = {name: np.abs(albedo.numpy() - truth).mean(0)[read]
+              for name, albedo in (("falloff", with_falloff), ("baked", baked))}
+    # measured: mean 0.0041 with the falloff against 0.0153 without
+    assert errors["falloff"].mean() < 0.009 and errors["baked"].mean() > 2 * errors["falloff"].mean()
+
+
 def test_in_linear_light_the_solve_finds_the_albedo_through_the_encoding_and_the_gains(problem):
     """Frames drawn in linear light (formats/colour_model.py) with exposure gains: solved in linear
     light, the albedo is the one they were drawn with; solved in display values, it is not."""

@@ -9,7 +9,7 @@ from pipeline.handmodel.lbs import HandModel
 from pipeline.handmodel.poses import NAMED_POSES
 from pipeline.render import fused, rasterize, shading
 from pipeline.render.occlusion import lost_light
-from pipeline.render.renderer import OUTPUTS, Appearance, Light, RenderMesh, lobe_colour, render
+from pipeline.render.renderer import OUTPUTS, Appearance, Light, RenderMesh, falloff_reach, lobe_colour, render
 from render_meshes import intrinsics
 
 SIZE = 96
@@ -35,7 +35,7 @@ def hand_scene():
     return points, mesh, albedo, normal_map, K
 
 
-def _render_with_gradients(scene, fused_path, light_per_frame=False):
+def _render_with_gradients(scene, fused_path, light_per_frame=False, falloff=False):
     points, mesh, albedo, normal_map, K = scene
     leaves = {"points": points.clone().requires_grad_(True), "albedo": albedo.clone().requires_grad_(True),
               "normal_map": normal_map.clone().requires_grad_(True),
@@ -46,7 +46,7 @@ def _render_with_gradients(scene, fused_path, light_per_frame=False):
     images = render(leaves["points"], mesh, K, SIZE, SIZE, outputs=OUTPUTS,
                     appearance=Appearance(leaves["albedo"], leaves["normal_map"]),
                     light=Light(leaves["light"], leaves["ambient"], shadows=True, shadow_resolution=64,
-                                occlusion=lost_light(points, mesh.faces)),
+                                occlusion=lost_light(points, mesh.faces), falloff=falloff),
                     background=background, fused=fused_path, vertex_values=leaves["points"])
     generator = torch.Generator().manual_seed(5)
     loss = sum((torch.nan_to_num(image, posinf=0.0) * torch.rand(image.shape, generator=generator,
@@ -56,10 +56,10 @@ def _render_with_gradients(scene, fused_path, light_per_frame=False):
     return {name: image.detach() for name, image in images.items()}, {name: leaf.grad for name, leaf in leaves.items()}
 
 
-@pytest.mark.parametrize("light_per_frame", [False, True])
-def test_fused_and_reference_paths_agree(hand_scene, light_per_frame):
-    reference_images, reference_grads = _render_with_gradients(hand_scene, False, light_per_frame)
-    fused_images, fused_grads = _render_with_gradients(hand_scene, True, light_per_frame)
+@pytest.mark.parametrize("light_per_frame,falloff", [(False, False), (True, False), (True, True)])
+def test_fused_and_reference_paths_agree(hand_scene, light_per_frame, falloff):
+    reference_images, reference_grads = _render_with_gradients(hand_scene, False, light_per_frame, falloff)
+    fused_images, fused_grads = _render_with_gradients(hand_scene, True, light_per_frame, falloff)
     assert reference_images["alpha"].sum() > 1000            # the hand is in view
     for name, image in reference_images.items():
         assert torch.equal(torch.isinf(image), torch.isinf(fused_images[name])), name
@@ -73,8 +73,8 @@ def test_fused_and_reference_paths_agree(hand_scene, light_per_frame):
     for images in (reference_images, fused_images):
         assert torch.allclose(images["vertex_values"][inside], images["position"][inside], atol=1e-9, rtol=0)
 
-@pytest.mark.parametrize("light_per_frame", [False, True])
-def test_the_lobes_share_from_one_renders_outputs(hand_scene, light_per_frame):
+@pytest.mark.parametrize("light_per_frame,falloff", [(False, False), (True, False), (False, True)])
+def test_the_lobes_share_from_one_renders_outputs(hand_scene, light_per_frame, falloff):
     """lobe_colour on a render's shading_normal, position, light_visibility and lost_light is the
     lobe's share of rgb: what the same light gives an albedo of 0 (shadows, the room light's
     occlusion, an environment light and a light per frame all on)."""
@@ -85,7 +85,7 @@ def test_the_lobes_share_from_one_renders_outputs(hand_scene, light_per_frame):
     light = Light(position, torch.tensor(0.4, dtype=torch.float64), shadows=True, shadow_resolution=64,
                   environment=0.1 * torch.randn(8, 3, generator=generator, dtype=torch.float64),
                   specular=(torch.tensor(0.45, dtype=torch.float64), torch.tensor(0.5, dtype=torch.float64)),
-                  occlusion=lost_light(points, mesh.faces))
+                  occlusion=lost_light(points, mesh.faces), falloff=falloff)
     images = render(points, mesh, K, SIZE, SIZE, outputs=("rgb", "alpha", "shading_normal", "position",
                                                           "light_visibility", "lost_light"),
                     appearance=Appearance(albedo, normal_map), light=light, antialiased=False)
@@ -94,8 +94,10 @@ def test_the_lobes_share_from_one_renders_outputs(hand_scene, light_per_frame):
     covered = images["alpha"][..., 0] > 0.5
     visibility = images["light_visibility"][covered]
     assert covered.sum() > 1000 and visibility.min() < 0.5 and visibility.max() > 0.99    # some of it in shadow
-    lobe = lobe_colour(images["shading_normal"][covered], images["position"][covered], light,
-                       covered.nonzero()[:, 0], visibility, images["lost_light"][covered])
+    reach = falloff_reach(light, points)
+    frame = covered.nonzero()[:, 0]
+    lobe = lobe_colour(images["shading_normal"][covered], images["position"][covered], light, frame, visibility,
+                       images["lost_light"][covered], None if reach is None else reach[frame])
     assert lobe.shape == (int(covered.sum()), 3) and lobe.max() > 0.02
     assert torch.allclose(lobe, lobe_only[covered], atol=1e-12, rtol=0)
     # the position is the surface's: it projects to its pixel's centre

@@ -60,7 +60,7 @@ from ..formats.colour_model import linear_to_srgb, srgb_to_linear
 from ..formats.environment_light import relative_strength
 from ..handmodel.digit_coordinates import smoothstep
 from ..render.rasterize import pixel_rays
-from ..render.renderer import lobe_colour, render
+from ..render.renderer import falloff_reach, lobe_colour, render
 from ..render.shading import environment_basis_values, sphere_radiance_basis
 from ..render.texture import bilinear_texels
 
@@ -357,9 +357,11 @@ def _observations(problem, shadows, batch_size, size, frames=None, weigh_opennes
             # the lobe's highlight and its sheen of the room (at the light's environment as it stands: the
             # environment solve below does not move it), from this render's surface at the usable pixels (a
             # second render of the lobe alone took 9 s of a 150-frame clip's 448 px solve)
-            sheen = lobe_colour(images["shading_normal"][usable], images["position"][usable], light,
-                                usable.nonzero()[:, 0], images["light_visibility"][usable],
-                                images["lost_light"][usable] if lobe_lost else None)
+            reach = falloff_reach(light, vertices)
+            frame = usable.nonzero()[:, 0]
+            sheen = lobe_colour(images["shading_normal"][usable], images["position"][usable], light, frame,
+                                images["light_visibility"][usable], images["lost_light"][usable] if lobe_lost else None,
+                                None if reach is None else reach[frame])
             colour = colour - gain * sheen
         facing = _facing(images["normal"], clip.K[batch])[usable][bright] if facing_on else None
         parts.append((images["uv"][usable][bright], shading[bright], colour[bright])

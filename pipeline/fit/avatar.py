@@ -109,6 +109,7 @@ class Avatar(torch.nn.Module):
         # the room light's occlusion (FitSettings.occlusion, set by problem.build_problem): per frame, measured at
         # a pose and kept (not saved)
         self.occlusion = False
+        self.light_falloff = False   # the point light's inverse-square falloff (FitSettings.light_falloff)
         self._lost, self._lost_pose, self._lost_betas = None, None, None
         # what measuring it has cost in this process (report.json's occlusion): frames measured, seconds (on CUDA
         # the seconds to queue the work)
@@ -175,7 +176,7 @@ class Avatar(torch.nn.Module):
                      linear=self.linear_light, occlusion=occlusion,
                      bounce=None if occlusion is None else bounce_radiance(self.albedo, self.ambient, self.linear_light),
                      angular_radius=float(self.light_angle),
-                     samples=self.area_samples if samples is None else samples)
+                     samples=self.area_samples if samples is None else samples, falloff=self.light_falloff)
 
     @torch.no_grad()
     def measure_occlusion(self, batch_size=8, exact=False, when_off=False):

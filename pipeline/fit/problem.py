@@ -188,6 +188,7 @@ def build_problem(sequence, settings: FitSettings, frames, device=None, shared=N
     avatar.switch_environment(settings.environment != "off")   # `auto`: fitted until fitting.py decides
     avatar.switch_specular(settings.specular != "off")         # likewise
     avatar.occlusion = settings.occlusion_in_stages   # `after`: switched on by fitting._after_the_stages
+    avatar.light_falloff = settings.light_falloff == "on"
     _take_shared(avatar, shared)
     frozen = tuple(frozen) + (() if settings.exposure == "on" else ("exposure",)) \
         + (("environment",) if settings.environment == "off" else ()) \

@@ -95,6 +95,12 @@ class FitSettings:
     # stages and keeps the one whose shadows explain the frames best (light_size.py), "off" keeps HARP's point
     # light. Only a fit with self-shadowing decides one
     light_size: str = "auto"
+    # the light's inverse-square falloff (render/renderer.Light.falloff): "on" shades the point light's direct light
+    # by (d0 / d)^2, d0 the light's distance to each frame's hand, as a lamp or a window a metre away lights the
+    # nearer fingers more than the wrist; "off" is HARP's light, as strong everywhere on the hand. With the clip's
+    # own light it takes the albedo nearer the truth on the phone-like clip; the fit does not search the light's
+    # distance yet, so it stays off (docs/fidelity.md, "The light's falloff with distance")
+    light_falloff: str = "off"
     # how the albedo and light make the frames' values (formats/colour_model.py): "linear" (sRGB decoded, shaded
     # in linear light and encoded, as a camera and Blender do) or "display" (the frames' 8-bit values shaded as
     # they are, as HARP does and fits did before). linear, on 3 seeds: held-out PSNR level on the demo and the
@@ -190,6 +196,8 @@ class FitSettings:
             raise ValueError(f"restart_lost_frames must be 'on' or 'off', got {self.restart_lost_frames!r}")
         if self.light_size not in ("auto", "off"):
             raise ValueError(f"light_size must be 'auto' or 'off', got {self.light_size!r}")
+        if self.light_falloff not in ("on", "off"):
+            raise ValueError(f"light_falloff must be 'on' or 'off', got {self.light_falloff!r}")
         if self.light_search not in ("on", "off"):
             raise ValueError(f"light_search must be 'on' or 'off', got {self.light_search!r}")
         if self.size_anchor not in ("initial", "alignment"):
@@ -260,6 +268,7 @@ class FitSettings:
         values.setdefault("albedo_openness", "off")      # saved before the solve weighed pixels by it
         values.setdefault("albedo_passes", 1)            # saved before the solves ran more than once
         values.setdefault("light_size", "off")           # saved before the light had a size
+        values.setdefault("light_falloff", "off")        # saved before the light fell off with distance
         values.setdefault("grow_texture", False)         # saved before the finer solve grew the texture
         values.setdefault("final_rate_fraction", 1.0)    # saved before the learning rates fell
         values.setdefault("plateau_tolerance", 0.0)      # saved before the rates halved on a plateau

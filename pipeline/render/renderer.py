@@ -114,6 +114,10 @@ class Light:
     # averaged over `samples` points of a disc that size; 0: a point light
     angular_radius: float = 0.0
     samples: int = 16
+    # the point light's direct light falls off with the square of the distance (shading.distance_falloff), as a
+    # lamp's or a window's does a metre away: 1 at each frame's centre (the shadow camera's target), brighter nearer
+    # the light; False: a light so far away that it is as strong everywhere on the hand (HARP's model)
+    falloff: bool = False
 
 
 def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appearance=None,
@@ -225,6 +229,17 @@ def _light_places(light, points):
     return area_light.light_points(position, centre, light.angular_radius, light.samples)
 
 
+def falloff_reach(light, points):
+    """(B, 1) each frame's distance from the light's centre to what it shines on (the shadow camera's
+    target, else the frame's mesh centre), where the light's falloff is 1; None without a falloff."""
+    if not light.falloff:
+        return None
+    centre = reference_shadow_map.shadow_target(points, light.shadow_target)
+    position = light.position.to(points.dtype)
+    position = position.expand(points.shape[0], 3) if position.dim() == 1 else position
+    return (position - centre).norm(dim=-1, keepdim=True)
+
+
 def _light_position(light_position, frame):
     """(N, 3) or (3,): a light position ((3,) or one per frame (B, 3)) for fragments of frames `frame` (N,)."""
     return light_position[frame] if light_position.dim() == 2 else light_position
@@ -237,6 +252,7 @@ def _lit_colour(ops, points, faces, frags, position, albedo, normal, light, lost
     (`lost`, (N, 9) interpolated lost_light, or None), encoded to sRGB in linear light. The
     specular highlight is the light's centre's, under the mean visibility (lobe_colour's numbers)."""
     places = _light_places(light, points)
+    reach = falloff_reach(light, points)
     colour, visibility = 0.0, None
     for place in places:
         seen = None
@@ -244,8 +260,11 @@ def _lit_colour(ops, points, faces, frags, position, albedo, normal, light, lost
             seen = ops.shadow_visibility(points, faces, position, frags, place, light.shadow_resolution,
                                          light.shadow_target, light.shadow_radius)
             visibility = seen if visibility is None else visibility + seen
-        colour = colour + ops.lit_colour(albedo, normal, position, _light_position(place, frags.frame), light.ambient,
-                                         seen)
+        here = _light_position(place, frags.frame)
+        if reach is not None:     # the falloff multiplies what reaches the point, as the shadow test does
+            falloff = reference_shading.distance_falloff(here, position, reach[frags.frame])
+            seen = falloff if seen is None else seen * falloff
+        colour = colour + ops.lit_colour(albedo, normal, position, here, light.ambient, seen)
     if len(places) > 1:
         colour = colour / len(places)
         visibility = None if visibility is None else visibility / len(places)
@@ -255,21 +274,31 @@ def _lit_colour(ops, points, faces, frags, position, albedo, normal, light, lost
         colour = colour - albedo * room_occlusion.lost_shading(lost, light.ambient, light.environment, light.bounce)
     if light.specular is not None:
         centre = _light_position(light.position.to(position.dtype), frags.frame)
-        for part in _lobe_parts(normal, position, centre, light, visibility, lost):
+        reaching = visibility
+        if reach is not None:
+            falloff = reference_shading.distance_falloff(centre, position, reach[frags.frame])
+            reaching = falloff if visibility is None else visibility * falloff
+        for part in _lobe_parts(normal, position, centre, light, reaching, lost):
             colour = colour + part
     return (linear_to_srgb(colour) if light.linear else colour), visibility
 
 
-def lobe_colour(normal, position, light, frame, visibility=None, lost=None):
+def lobe_colour(normal, position, light, frame, visibility=None, lost=None, reach=None):
     """(N, C) the specular lobe's share of the colour at N surface points (C = 1, or 3 with an
     environment light), in the shading's units (not encoded): its highlight under the point light,
     seen as `visibility` says ((N, 1), None: unshadowed), and its sheen of the room, less the share
     of the room the hand keeps from the point (`lost`, (N, 9), or None). `normal` (N, 3) unit, the
     shading normal, and `position` (N, 3) in the camera frame; `frame` (N,) each point's frame in
-    the batch (for a light placed per frame); `light` a Light with a lobe. The same numbers as the
-    lobe's share of render()'s rgb."""
-    highlight, room = _lobe_parts(normal, position, _light_position(light.position.to(position.dtype), frame), light,
-                                  visibility, lost)
+    the batch (for a light placed per frame); `light` a Light with a lobe; `reach` (N, 1) each
+    point's frame's falloff_reach, for a light with a falloff. The same numbers as the lobe's share
+    of render()'s rgb."""
+    centre = _light_position(light.position.to(position.dtype), frame)
+    if light.falloff:
+        if reach is None:
+            raise ValueError("a light with a falloff needs each point's reach (falloff_reach)")
+        falloff = reference_shading.distance_falloff(centre, position, reach)
+        visibility = falloff if visibility is None else visibility * falloff
+    highlight, room = _lobe_parts(normal, position, centre, light, visibility, lost)
     return highlight + room
 
 

@@ -73,6 +73,14 @@ def shade(albedo, normal, to_light, ambient, visibility=None):
     return albedo * (ambient + (1 - ambient) * diffuse)
 
 
+def distance_falloff(light_position, position, reach):
+    """(N, 1) the inverse-square falloff of a light at `light_position` ((3,) or (N, 3)) at the
+    surface points `position` (N, 3), 1 at the distance `reach` ((N, 1) or scalar, metres):
+    (reach / |light - position|)^2."""
+    distance = (light_position - position).norm(dim=-1, keepdim=True).clamp(min=1e-6)
+    return (reach / distance).square()
+
+
 def lit_colour(albedo, normal, position, light_position, ambient, visibility=None):
     """shade() under a point light at light_position ((3,) or (N, 3)) seen from the surface
     points `position` (N, 3)."""
