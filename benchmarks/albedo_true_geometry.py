@@ -1,6 +1,7 @@
 """Benchmark: how much of the albedo's error on a synthetic clip is the fitted geometry's.
 
-    .venv/bin/python benchmarks/albedo_true_geometry.py FIT SEQ [--resolution 448]
+    .venv/bin/python benchmarks/albedo_true_geometry.py FIT SEQ [--resolution 448] [--true-light] [--falloff]
+        [--no-lobe] [--cases "true geometry,fitted geometry"]
 
 The fit's albedo solve (fit/albedo_solve.py, reweighted) is run again on the clip's own frames
 with the light, exposure and room light as fitted, four times, the hand's surface in each frame
@@ -10,7 +11,11 @@ taken from:
     true poses, fitted shape    the fitted rest surface skinned with the true poses
     fitted poses, true shape    the true rest surface skinned with the fitted poses
 The frames the fit left off their silhouettes (IoU under 0.8, as lost_frames rules) are left out
-of every solve. Printed per case, one JSON line: the silhouettes' IoU against the masks, the
+of every solve; the room light's occlusion is drawn as the finished fit draws it. `--true-light`
+puts the light at the clip's own, with its size (bench_albedo_pose_polish.put_light_at_truth),
+`--falloff` makes it fall off with the square of the distance (renderer.Light.falloff),
+`--no-lobe` leaves the fit's specular lobe out (a clip rendered with matte skin), `--cases` picks
+the cases. Printed per case, one JSON line: the silhouettes' IoU against the masks, the
 albedo's sharpness ratio and MAE against the truth in the visible UV area (as albedo_ceiling.py),
 and the new-pose PSNR in the overlap of the avatar wearing that albedo and of the true shape
 wearing it (as new_pose_limits.py). `--per-frame` adds each case's IoU per fitted frame and the
@@ -33,6 +38,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from albedo_ceiling import problem_at, scores  # noqa: E402
+from bench_albedo_pose_polish import put_light_at_truth  # noqa: E402
 from new_pose_limits import new_pose_figures  # noqa: E402
 from pipeline.evaluate.albedo import albedo_truth  # noqa: E402
 from pipeline.evaluate.fidelity import true_hand  # noqa: E402
@@ -42,6 +48,9 @@ from pipeline.fit.lost_frames import LOST_IOU  # noqa: E402
 from pipeline.formats import sequence_folder as seq  # noqa: E402
 from pipeline.handmodel.lbs import HandModel  # noqa: E402
 from pipeline.render.renderer import render  # noqa: E402
+
+
+CASES = ("fitted geometry", "true geometry", "true poses, fitted shape", "fitted poses, true shape")
 
 
 def geometries(problem, sequence):
@@ -124,12 +133,24 @@ def main(argv=None):
     parser.add_argument("sequence")
     parser.add_argument("--resolution", type=int, default=448, help="working resolution of the solve (0: the fit's own)")
     parser.add_argument("--per-frame", action="store_true", help="per-frame IoU, L1, joint error and depth error")
+    parser.add_argument("--true-light", action="store_true", help="the light at the clip's own, with its size")
+    parser.add_argument("--falloff", action="store_true", help="the light falls off with the square of the distance")
+    parser.add_argument("--no-lobe", action="store_true", help="leave the fit's specular lobe out (a matte clip)")
+    parser.add_argument("--cases", default=",".join(CASES), help="comma-separated, of: " + ", ".join(CASES))
     args = parser.parse_args(argv)
     torch.set_grad_enabled(False)
     problem, shadows = problem_at(args.fit, args.sequence, args.resolution)
     truth = albedo_truth(args.sequence, problem.avatar.albedo.shape[-1], "cpu", args.fit)
     kept, fitted_albedo = None, problem.avatar.albedo.detach().clone()
+    problem.avatar.occlusion = problem.settings.occlusion_drawn      # as the finished fit shades
+    problem.avatar.light_falloff = args.falloff
+    if args.true_light:
+        put_light_at_truth(problem.avatar, args.sequence)
+    if args.no_lobe:
+        problem.avatar.switch_specular(False)
     for case, posed in geometries(problem, args.sequence).items():
+        if case not in args.cases.split(","):
+            continue
         ious = silhouette_ious(problem, posed)
         if kept is None:                      # the fitted geometry's: the frames the fit keeps
             kept = [int(i) for i in np.flatnonzero(ious >= LOST_IOU)]

@@ -44,6 +44,7 @@ from pipeline.handmodel.lbs import HandModel  # noqa: E402
 from pipeline.render.renderer import Appearance  # noqa: E402
 
 PICTURE_POSES = ("spread", "thumbs_up", "random1")
+BROAD_TEXELS = 3.0      # the Gaussian's sigma (texels of a 512 texture) that parts broad tones from detail
 PICTURE_SIZE = 192      # pixels per panel
 
 
@@ -144,6 +145,13 @@ def main():
                          ("true_where_never_shown", ~visible)):
         albedo = np.where(region[..., None], true_at_fit_brightness, fitted)
         figures["new_poses"][name] = new_pose_figures(args.fit, args.sequence, albedo)
+    sigma = BROAD_TEXELS * fitted.shape[0] / 512
+    broad = lambda image: cv2.GaussianBlur(image.astype(np.float32), (0, 0), sigma).astype(np.float64)  # noqa: E731
+    fitted_broad, true_broad = broad(fitted), broad(true_at_fit_brightness)
+    for name, albedo in (("true_broad_tones", true_broad + fitted - fitted_broad),
+                         ("true_detail", fitted_broad + true_at_fit_brightness - true_broad)):
+        figures["new_poses"][name] = new_pose_figures(args.fit, args.sequence,
+                                                      np.where(visible[..., None], albedo, fitted))
     if args.picture:
         picture(args.fit, args.sequence, scale, args.picture)
     print(json.dumps(figures))

@@ -15,11 +15,14 @@ ambient and shadows, Y the room light's 8 harmonics at the shading normal, a the
 and c fitted). What the model then leaves, the ratio I' / (s S0 a + k a + Y a c) (I' = I - P) per pixel, is
 binned by what could explain it: the cosine to the point light, how squarely the pixel sees the
 surface, the point light's visibility (shadows), the distance to the silhouette's edge, the skin's
-tone (the true albedo's luminance). Printed per case, one JSON line per binning: per bin the share
+tone (the true albedo's luminance), the distance to the light's centre over the frame's median. Printed per case, one JSON line per binning: per bin the share
 of pixels, the mean ratio (over the colours) and the share of the squared residual. A flat ratio
 is a light model that explains the frames; the bins that carry the residual say what is missing.
 `--true-light` puts the point light at the clip's own light (`--area-samples N`: spread over its
-square), `--angular-radius` gives the fit's light a size (render/area_light.py). The figures of
+square), `--angular-radius` gives the fit's light a size (render/area_light.py), `--falloff` makes
+its light fall off with the square of the distance (renderer.Light.falloff), `--no-lobe` leaves the
+fit's specular lobe out (for a clip rendered with matte skin). The room light's occlusion is drawn
+as the finished fit draws it (FitSettings.occlusion). The figures of
 docs/fidelity.md ("The light's size") come from this script.
 """
 from __future__ import annotations
@@ -53,6 +56,7 @@ BINS = {
     "visibility": np.array([0.0, 0.05, 0.5, 0.95, 1.01]),
     "edge_px": np.array([0.0, 2.0, 4.0, 8.0, 16.0, 1e9]),
     "tone": np.array([0.0, 0.15, 0.3, 0.45, 1.01]),
+    "light_distance": np.array([0.0, 0.9, 0.95, 0.98, 1.0, 1.02, 1.05, 1.1, 9.0]),
 }
 
 
@@ -64,7 +68,7 @@ def gather(problem, shadows, posed, albedo, flat_normals, batch_size=4, light_sa
     avatar, clip = problem.avatar, problem.clip
     normal_map = None if flat_normals else avatar.unit_normal_map()
     columns = {k: [] for k in ("colour", "sheen", "base", "basis", "albedo", "cos_light", "facing", "visibility",
-                                "edge_px", "frame", "row", "col")}
+                                "edge_px", "frame", "row", "col", "light_distance")}
     for batch in torch.arange(len(problem.frames)).split(batch_size):
         vertices, _ = posed(batch)
         light = avatar.light(shadows, batch, vertices)
@@ -108,6 +112,8 @@ def gather(problem, shadows, posed, albedo, flat_normals, batch_size=4, light_sa
             columns["facing"].append(facing[index].numpy()[here])
             columns["visibility"].append(unit["light_visibility"][index, ..., 0].numpy()[here])
             columns["edge_px"].append(edge[here])
+            distance = (light.position.detach() - unit["position"][index]).norm(dim=-1).numpy()[here]
+            columns["light_distance"].append(distance / np.median(distance))
             columns["frame"].append(np.full(len(rows), int(batch[index])))
             columns["row"].append(rows)
             columns["col"].append(cols)
@@ -144,7 +150,7 @@ def binned(data, target, prediction):
     ratio = (target / np.maximum(prediction, 1e-4)).mean(1)
     squared = np.square(target - prediction).sum(1)
     tone = data["albedo"] @ np.array([0.2126, 0.7152, 0.0722])
-    features = {**{k: data[k] for k in ("cos_light", "facing", "visibility", "edge_px")}, "tone": tone}
+    features = {**{k: data[k] for k in ("cos_light", "facing", "visibility", "edge_px", "light_distance")}, "tone": tone}
     tables = {}
     for name, edges in BINS.items():
         places = np.clip(np.digitize(features[name], edges) - 1, 0, len(edges) - 2)
@@ -197,10 +203,16 @@ def main(argv=None):
                         help="the fit's light given this size (degrees; render/area_light.py, 16 points) instead of "
                              "its own")
     parser.add_argument("--cases", default="true geometry,fitted geometry", help="comma-separated")
+    parser.add_argument("--falloff", action="store_true", help="the light falls off with the square of the distance")
+    parser.add_argument("--no-lobe", action="store_true", help="leave the fit's specular lobe out (a matte clip)")
     args = parser.parse_args(argv)
     torch.set_grad_enabled(False)
     problem, shadows = problem_at(args.fit, args.sequence, args.resolution)
     problem.avatar.area_samples = 16
+    problem.avatar.occlusion = problem.settings.occlusion_drawn      # as the finished fit shades
+    problem.avatar.light_falloff = args.falloff
+    if args.no_lobe:
+        problem.avatar.switch_specular(False)
     if args.angular_radius is not None:
         problem.avatar.light_angle.fill_(math.radians(args.angular_radius))
     light_samples = None

@@ -46,7 +46,7 @@ def _render_with_gradients(scene, fused_path, light_per_frame=False, falloff=Fal
     images = render(leaves["points"], mesh, K, SIZE, SIZE, outputs=OUTPUTS,
                     appearance=Appearance(leaves["albedo"], leaves["normal_map"]),
                     light=Light(leaves["light"], leaves["ambient"], shadows=True, shadow_resolution=64,
-                                occlusion=lost_light(points, mesh.faces), falloff=falloff),
+                                occlusion=lost_light(points, mesh.faces), falloff=0.45 if falloff else 0.0),
                     background=background, fused=fused_path, vertex_values=leaves["points"])
     generator = torch.Generator().manual_seed(5)
     loss = sum((torch.nan_to_num(image, posinf=0.0) * torch.rand(image.shape, generator=generator,
@@ -85,7 +85,7 @@ def test_the_lobes_share_from_one_renders_outputs(hand_scene, light_per_frame, f
     light = Light(position, torch.tensor(0.4, dtype=torch.float64), shadows=True, shadow_resolution=64,
                   environment=0.1 * torch.randn(8, 3, generator=generator, dtype=torch.float64),
                   specular=(torch.tensor(0.45, dtype=torch.float64), torch.tensor(0.5, dtype=torch.float64)),
-                  occlusion=lost_light(points, mesh.faces), falloff=falloff)
+                  occlusion=lost_light(points, mesh.faces), falloff=0.45 if falloff else 0.0)
     images = render(points, mesh, K, SIZE, SIZE, outputs=("rgb", "alpha", "shading_normal", "position",
                                                           "light_visibility", "lost_light"),
                     appearance=Appearance(albedo, normal_map), light=light, antialiased=False)

@@ -176,7 +176,16 @@ class Avatar(torch.nn.Module):
                      linear=self.linear_light, occlusion=occlusion,
                      bounce=None if occlusion is None else bounce_radiance(self.albedo, self.ambient, self.linear_light),
                      angular_radius=float(self.light_angle),
-                     samples=self.area_samples if samples is None else samples, falloff=self.light_falloff)
+                     samples=self.area_samples if samples is None else samples, falloff=self.falloff_reach())
+
+    @torch.no_grad()
+    def falloff_reach(self) -> float:
+        """Where the light's falloff is 1 (renderer.Light.falloff): its distance from the hand's mean
+        place over the clip's frames (the fitted translations), one distance for every frame, so
+        that the light's strength is what it gives the hand there; 0 while the falloff is off."""
+        if not self.light_falloff:
+            return 0.0
+        return float((self.light_position - self.transl.mean(0)).norm())
 
     @torch.no_grad()
     def measure_occlusion(self, batch_size=8, exact=False, when_off=False):

@@ -177,7 +177,7 @@ def _write_avatar(out, problem, state, shadows):
                   specular_lobe.KEY: specular_lobe.to_description(*(avatar.specular() or (None, None))),
                   light_size.KEY: light_size.to_description(avatar.light_angle),
                   colour_model.KEY: settings.colour_model, "occlusion": settings.occlusion_drawn,
-                  "falloff": settings.light_falloff == "on"},
+                  "falloff": avatar.falloff_reach()},
         "camera": camera_description(clip),
         "footage": {"sequence": str(problem.sequence.resolve()), "fps": clip.info.fps,
                     "frame_count": clip.info.frame_count, "width": clip.info.width, "height": clip.info.height},

@@ -115,9 +115,9 @@ class Light:
     angular_radius: float = 0.0
     samples: int = 16
     # the point light's direct light falls off with the square of the distance (shading.distance_falloff), as a
-    # lamp's or a window's does a metre away: 1 at each frame's centre (the shadow camera's target), brighter nearer
-    # the light; False: a light so far away that it is as strong everywhere on the hand (HARP's model)
-    falloff: bool = False
+    # lamp's or a window's does a metre away: 1 at this distance from the light (metres), brighter nearer; 0: a
+    # light so far away that it is as strong everywhere on the hand (HARP's model)
+    falloff: float = 0.0
 
 
 def render(points, mesh: RenderMesh, K, height, width, outputs=("alpha",), appearance=None,
@@ -230,14 +230,11 @@ def _light_places(light, points):
 
 
 def falloff_reach(light, points):
-    """(B, 1) each frame's distance from the light's centre to what it shines on (the shadow camera's
-    target, else the frame's mesh centre), where the light's falloff is 1; None without a falloff."""
+    """(B, 1) the distance from the light at which its falloff is 1 (Light.falloff), for each frame of
+    `points` (B, V, 3); None without a falloff."""
     if not light.falloff:
         return None
-    centre = reference_shadow_map.shadow_target(points, light.shadow_target)
-    position = light.position.to(points.dtype)
-    position = position.expand(points.shape[0], 3) if position.dim() == 1 else position
-    return (position - centre).norm(dim=-1, keepdim=True)
+    return points.new_full((points.shape[0], 1), float(light.falloff))
 
 
 def _light_position(light_position, frame):
