@@ -110,6 +110,7 @@ class Avatar(torch.nn.Module):
         # a pose and kept (not saved)
         self.occlusion = False
         self.light_falloff = False   # the point light's inverse-square falloff (FitSettings.light_falloff)
+        self._hand_centre = None     # hand_centre's, kept
         self._lost, self._lost_pose, self._lost_betas = None, None, None
         # what measuring it has cost in this process (report.json's occlusion): frames measured, seconds (on CUDA
         # the seconds to queue the work)
@@ -181,11 +182,21 @@ class Avatar(torch.nn.Module):
     @torch.no_grad()
     def falloff_reach(self) -> float:
         """Where the light's falloff is 1 (renderer.Light.falloff): its distance from the hand's mean
-        place over the clip's frames (the fitted translations), one distance for every frame, so
-        that the light's strength is what it gives the hand there; 0 while the falloff is off."""
+        place over the clip's frames (its keypoints' mean, hand_centre), one distance for every
+        frame, so that the light's strength is what it gives the hand there; 0 while it is off."""
         if not self.light_falloff:
             return 0.0
-        return float((self.light_position - self.transl.mean(0)).norm())
+        return float((self.light_position - self.hand_centre()).norm())
+
+    @torch.no_grad()
+    def hand_centre(self, refresh=False):
+        """(3,) the mean of the hand's 21 keypoints over every frame, posed as they stand when first
+        asked (or with `refresh`): the root translation can lie down a forearm, centimetres off it."""
+        if refresh or self._hand_centre is None:
+            frames = torch.arange(len(self.global_orient), device=self.pose.device)
+            self._hand_centre = torch.cat([self.posed(batch)[1][:, :21].reshape(-1, 3)
+                                           for batch in frames.split(32)]).mean(0)
+        return self._hand_centre
 
     @torch.no_grad()
     def measure_occlusion(self, batch_size=8, exact=False, when_off=False):
@@ -193,6 +204,8 @@ class Avatar(torch.nn.Module):
         tolerance since it was last measured (room_occlusion), or of every frame at its pose now
         (`exact`: what the outputs are made with, so that a resumed fit makes the same ones);
         nothing while it is off, unless `when_off` (the albedo solve's openness reads it)."""
+        if exact and self.light_falloff:
+            self.hand_centre(refresh=True)      # the falloff's reach from the poses the outputs are made with
         if not (self.occlusion or when_off):
             return
         if exact and self._lost_pose is not None:
