@@ -275,7 +275,8 @@ def build_parser():
     fit.add_argument("--light-falloff", choices=("on", "off"), default=None,
                      help="the light's inverse-square falloff: on lights the nearer parts of the hand more, as a lamp "
                           "or a window a metre away does; off (default) is as strong everywhere on the hand. The fit "
-                          "does not search the light's distance yet (docs/fidelity.md)")
+                          "does not search the light's distance yet: where its light stands too near, on costs "
+                          "held-out PSNR (2 dB on the phone-like clip; docs/fidelity.md)")
     fit.add_argument("--colour-model", choices=("display", "linear"), default=None,
                      help="how the albedo and light make the frames' values: linear (default) decodes sRGB, shades "
                           "in linear light and encodes, as a camera and Blender do, so the bound avatar renders as "

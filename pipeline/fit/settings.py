@@ -99,8 +99,9 @@ class FitSettings:
     # by (d0 / d)^2, d0 the light's distance from the hand's mean place (Avatar.falloff_reach), as a lamp or a window
     # a metre away lights the nearer fingers more than the wrist; "off" is HARP's light, as strong everywhere on the
     # hand. On the phone-like clip under its own window: one albedo solve 8-9% nearer the truth, the fit's whole
-    # work after the stages sharper by 0.01-0.03 on 3 seeds, new poses level; and the fit does not search the
-    # light's distance yet, so off (docs/fidelity.md, "The light's falloff with distance")
+    # work after the stages sharper by 0.01-0.03 on 3 seeds, new poses level; the fit does not search the light's
+    # distance yet, and a whole fit with it on (its light 0.4 m away) lost 2 dB held out: off (docs/fidelity.md,
+    # "The light's falloff with distance")
     light_falloff: str = "off"
     # how the albedo and light make the frames' values (formats/colour_model.py): "linear" (sRGB decoded, shaded
     # in linear light and encoded, as a camera and Blender do) or "display" (the frames' 8-bit values shaded as
