@@ -67,6 +67,19 @@ def problem_rendered_with(tmp_path_factory, albedo, pose=OPEN, occlusion="on"):
     return problem, truth.numpy()
 
 
+def frames_of(problem, albedo):
+    """(F, H, W, 3) every frame of the problem drawn by its avatar as it stands (pose, light, lobe,
+    colour model; no shadows) wearing `albedo` ((3, T, T) array), without exposure gains."""
+    avatar = problem.avatar
+    everything = torch.arange(FRAMES)
+    with torch.no_grad():
+        vertices, _ = avatar.posed(everything)
+        return render(vertices, avatar.mesh, problem.clip.K, SIZE, SIZE, outputs=("rgb",),
+                      appearance=dataclasses.replace(avatar.appearance(), albedo=torch.as_tensor(
+                          albedo, dtype=avatar.albedo.dtype)),
+                      light=avatar.light(False, everything, vertices))["rgb"]
+
+
 def test_solved_albedo_is_the_albedo_the_frames_were_rendered_with(problem):
     problem, truth = problem
     albedo, read = solved_albedo(problem, shadows=False)
@@ -366,12 +379,7 @@ def test_the_solve_takes_the_specular_sheen_off(problem):
             for name, value in lobe.items():
                 getattr(avatar, name).copy_(value)
             avatar.switch_specular(True)
-            everything = torch.arange(FRAMES)
-            vertices, _ = avatar.posed(everything)
-            problem.clip.images = render(vertices, avatar.mesh, problem.clip.K, SIZE, SIZE, outputs=("rgb",),
-                                         appearance=dataclasses.replace(avatar.appearance(), albedo=torch.as_tensor(
-                                             truth, dtype=avatar.albedo.dtype)),
-                                         light=avatar.light(False, everything, vertices))["rgb"]
+            problem.clip.images = frames_of(problem, truth)
         shiny, read = solved_albedo(problem, shadows=False)
         avatar.switch_specular(False)
         baked, _ = solved_albedo(problem, shadows=False)
@@ -396,17 +404,12 @@ def test_a_near_lights_falloff_is_taken_off_not_baked_in(problem):
     problem, truth = problem
     avatar, frames = problem.avatar, problem.clip.images
     saved = avatar.light_position.detach().clone()
-    everything = torch.arange(FRAMES)
     try:
         with torch.no_grad():
-            vertices, _ = avatar.posed(everything)
-            centre = vertices.mean((0, 1))
+            centre = avatar.posed(torch.arange(FRAMES))[0].mean((0, 1))
             avatar.light_position.copy_(centre + 0.25 * torch.nn.functional.normalize(saved - centre, dim=0))
             avatar.light_falloff = True
-            problem.clip.images = render(vertices, avatar.mesh, problem.clip.K, SIZE, SIZE, outputs=("rgb",),
-                                         appearance=dataclasses.replace(avatar.appearance(), albedo=torch.as_tensor(
-                                             truth, dtype=avatar.albedo.dtype)),
-                                         light=avatar.light(False, everything, vertices))["rgb"]
+            problem.clip.images = frames_of(problem, truth)
         with_falloff, read = solved_albedo(problem, shadows=False)
         avatar.light_falloff = False
         baked, _ = solved_albedo(problem, shadows=False)
@@ -434,13 +437,7 @@ def test_in_linear_light_the_solve_finds_the_albedo_through_the_encoding_and_the
         with torch.no_grad():
             avatar.exposure.copy_(gains)
             avatar.linear_light = True
-            everything = torch.arange(FRAMES)
-            vertices, _ = avatar.posed(everything)
-            problem.clip.images = render(vertices, avatar.mesh, problem.clip.K, SIZE, SIZE, outputs=("rgb",),
-                                         appearance=dataclasses.replace(avatar.appearance(), albedo=torch.as_tensor(
-                                             truth, dtype=avatar.albedo.dtype)),
-                                         light=avatar.light(False, everything, vertices))["rgb"] \
-                * avatar.exposure_gain(torch.arange(FRAMES))
+            problem.clip.images = frames_of(problem, truth) * avatar.exposure_gain(torch.arange(FRAMES))
         linear, read = solved_albedo(exposed, shadows=False)
         avatar.linear_light = False
         display, _ = solved_albedo(exposed, shadows=False)
