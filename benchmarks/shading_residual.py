@@ -16,8 +16,9 @@ and c fitted). What the model then leaves, the ratio I' / (s S0 a + k a + Y a c)
 binned by what could explain it: the cosine to the point light, how squarely the pixel sees the
 surface, the point light's visibility (shadows), the distance to the silhouette's edge, the skin's
 tone (the true albedo's luminance), the distance to the light's centre over the frame's median.
-Printed per case, one JSON line per binning: per bin the share of pixels, the mean ratio (over the colours) and the share of the squared residual. A flat ratio
-is a light model that explains the frames; the bins that carry the residual say what is missing.
+Printed per case, one JSON line per binning: per bin the share of pixels, the mean ratio (over the
+colours) and the share of the squared residual. A flat ratio is a light model that explains the
+frames; the bins that carry the residual say what is missing.
 `--true-light` puts the point light at the clip's own light (`--area-samples N`: spread over its
 square), `--angular-radius` gives the fit's light a size (render/area_light.py), `--falloff` makes
 its light fall off with the square of the distance (renderer.Light.falloff), `--no-lobe` leaves the
