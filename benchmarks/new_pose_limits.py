@@ -1,6 +1,6 @@
 """Benchmark: where the new-pose error of a fitted synthetic avatar lies in its albedo.
 
-    .venv/bin/python benchmarks/new_pose_limits.py FIT SEQ [--picture PNG] [--band 3]
+    .venv/bin/python benchmarks/new_pose_limits.py FIT SEQ [--picture PNG] [--band 3] [--broad 3,10,30]
 
 The albedo's squared error against the truth (after the fidelity measure's per-channel scale,
 evaluate/albedo.py) over the texels the clip showed, split by the texel's distance to the true
@@ -10,6 +10,11 @@ solve resolution) or the texture fill made it. Then the new-pose figures
 (evaluate/fidelity.evaluate_fidelity, on a copy of the fit) with the true albedo, at the fit's
 brightness, put into one region at a time: the band the clip showed, the rest it showed, the
 texels it never showed. How far each moves the new-pose PSNR says how much that region costs.
+The same by scale: over the texels the clip showed, the truth's broad tones (a Gaussian of each
+`--broad` sigma over those texels alone, shown_blur) under the fitted detail, and the fitted broad
+tones under the truth's detail; at the first sigma the truth's broad tones also only where the
+clip saw a texel squarely (albedo_solve.texel_trust at least 0.5) or only edge-on, and only on the
+truth's dark or light tone.
 --picture: three new poses from the palm and the back: the true hand, the true shape wearing
 the fitted albedo (scaled), their difference x4. Also the albedo's brightness error (after the
 scale) by signed distance to the tone boundary (signed_profile). One JSON line; docs/fidelity.md
@@ -35,7 +40,7 @@ from albedo_ceiling import problem_at  # noqa: E402
 from pipeline.avatar_render import load_avatar  # noqa: E402
 from pipeline.evaluate.albedo import albedo_truth, best_scale, tone_cut  # noqa: E402
 from pipeline.evaluate.fidelity import VIEWS, evaluate_fidelity, novel_poses, render_posed, true_hand  # noqa: E402
-from pipeline.fit.albedo_solve import decided_texels  # noqa: E402
+from pipeline.fit.albedo_solve import decided_texels, texel_trust  # noqa: E402
 from pipeline.formats import avatar_folder as av  # noqa: E402
 from pipeline.formats import colour_model  # noqa: E402
 from pipeline.formats import sequence_folder as seq  # noqa: E402
@@ -77,6 +82,15 @@ def signed_profile(fitted, truth, visible, reach=5):
     return profile
 
 
+def shown_blur(image, shown, sigma):
+    """`image` (T, T, 3) blurred by a Gaussian of `sigma` texels over the texels `shown` alone (the
+    blur of image times the mask over the blur of the mask): the texels outside (other charts' fill,
+    the atlas's background) do not bleed into the broad tones at the charts' borders."""
+    weight = shown.astype(np.float32)
+    blurred = cv2.GaussianBlur(image.astype(np.float32) * weight[..., None], (0, 0), sigma)
+    return (blurred / np.maximum(cv2.GaussianBlur(weight, (0, 0), sigma), 1e-6)[..., None]).astype(np.float64)
+
+
 def new_pose_figures(fit, sequence, albedo):
     """fidelity's new-pose PSNR in the overlap, and the true shape's wearing `albedo` (T, T, 3 in
     [0, 1]), with `albedo` as the fit's albedo.png (on a temporary copy of the fit)."""
@@ -116,6 +130,10 @@ def main():
     parser.add_argument("fit", type=Path)
     parser.add_argument("sequence", type=Path)
     parser.add_argument("--band", type=float, default=3.0, help="texels from the tone boundary (default 3)")
+    parser.add_argument("--broad", default=str(BROAD_TEXELS),
+                        help="the broad tones' Gaussian sigmas, texels of a 512 texture, comma-separated (default 3): "
+                             "the truth's broad tones at each; at the first, also split by how squarely the clip saw "
+                             "a texel and by the truth's tone")
     parser.add_argument("--picture", type=Path)
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
@@ -145,13 +163,26 @@ def main():
                          ("true_where_never_shown", ~visible)):
         albedo = np.where(region[..., None], true_at_fit_brightness, fitted)
         figures["new_poses"][name] = new_pose_figures(args.fit, args.sequence, albedo)
-    sigma = BROAD_TEXELS * fitted.shape[0] / 512
-    broad = lambda image: cv2.GaussianBlur(image.astype(np.float32), (0, 0), sigma).astype(np.float64)  # noqa: E731
-    fitted_broad, true_broad = broad(fitted), broad(true_at_fit_brightness)
-    for name, albedo in (("true_broad_tones", true_broad + fitted - fitted_broad),
-                         ("true_detail", fitted_broad + true_at_fit_brightness - true_broad)):
-        figures["new_poses"][name] = new_pose_figures(args.fit, args.sequence,
-                                                      np.where(visible[..., None], albedo, fitted))
+    squarely_seen = texel_trust(problem.at_resolution(problem.settings.solve_resolution)).cpu().numpy() >= 0.5
+    dark = shown.mean(-1) < tone_cut(shown.mean(-1)[visible])
+    for number, texels in enumerate(float(value) for value in args.broad.split(",")):
+        sigma = texels * fitted.shape[0] / 512
+        broad = lambda image: shown_blur(image, visible, sigma)  # noqa: E731
+        fitted_broad, true_broad = broad(fitted), broad(true_at_fit_brightness)
+        suffix = "" if texels == BROAD_TEXELS else f"_sigma{texels:g}"
+        cases = [("true_broad_tones", visible, true_broad + fitted - fitted_broad),
+                 ("true_detail", visible, fitted_broad + true_at_fit_brightness - true_broad)]
+        if number == 0:   # where the broad tones' error lies: seen squarely or edge-on, the dark tone or the light
+            tones = true_broad + fitted - fitted_broad
+            cases += [("true_broad_tones_squarely_seen", visible & squarely_seen, tones),
+                      ("true_broad_tones_edge_on", visible & ~squarely_seen, tones),
+                      ("true_broad_tones_dark_tone", visible & dark, tones),
+                      ("true_broad_tones_light_tone", visible & ~dark, tones)]
+        for name, region, albedo in cases:
+            figures["new_poses"][name + suffix] = new_pose_figures(args.fit, args.sequence,
+                                                                   np.where(region[..., None], albedo, fitted))
+    figures["texel_shares"] = {"squarely_seen": round(float((visible & squarely_seen).sum() / visible.sum()), 3),
+                               "dark_tone": round(float((visible & dark).sum() / visible.sum()), 3)}
     if args.picture:
         picture(args.fit, args.sequence, scale, args.picture)
     print(json.dumps(figures))

@@ -389,3 +389,42 @@ def test_the_palms_size_is_the_spread_of_the_wrist_and_knuckles_and_ignores_the_
     assert float(model.size(betas, "hand")) > 1.02 * float(model.size(torch.zeros_like(betas)))
     betas[0] = 1.0
     assert float(model.size(betas, "palm")) == pytest.approx(1.05 * expected, rel=1e-6)
+
+
+def test_the_keypoint_anchor_blind_to_the_size_holds_the_pose_and_proportions_alone(tiny_clip):
+    """settings.anchor_size "free": the anchor brings the fitted keypoints to the initial
+    estimate's size before comparing them, so a larger hand of the same proportions in the same
+    poses costs nothing (in metres it costs), while a longer index finger or a bent pose still does."""
+    def anchor_after(settings, change):
+        problem = build_problem(tiny_clip, settings, np.arange(4), "cpu")
+        avatar = problem.avatar
+        with torch.no_grad():
+            change(avatar)
+        _, terms = batch_energy(problem, StageSpec(StageKind.GEOMETRY, 1), torch.arange(2), False,
+                                torch.Generator())
+        return float(terms["keypoint_anchor"])
+
+    scale = build_problem(tiny_clip, settings_for("fast", 4), np.arange(4), "cpu").avatar.model.data \
+        .shape_names.index("scale")
+
+    def larger(avatar):
+        avatar.betas[scale] += 1.0           # 5% larger, every proportion kept
+
+    def longer_index(avatar):
+        avatar.betas[5] += 2.0
+
+    def bent(avatar):
+        avatar.pose[:2, 3:6] += 0.3          # the index finger's first joint
+
+    for name in ("held", "free"):
+        settings = settings_for("fast", 4, resolution=96, texture_size=64, shadows="off", anchor_size=name)
+        unchanged = anchor_after(settings, lambda avatar: None)
+        assert unchanged == pytest.approx(0.0, abs=1e-12)
+        if name == "held":
+            assert anchor_after(settings, larger) > 1e-4
+        else:
+            assert anchor_after(settings, larger) < 1e-10
+        assert anchor_after(settings, longer_index) > 1e-5
+        assert anchor_after(settings, bent) > 1e-5
+    with pytest.raises(ValueError, match="anchor_size"):
+        settings_for("fast", 4, anchor_size="loose")

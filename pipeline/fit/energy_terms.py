@@ -110,10 +110,22 @@ def _silhouette(batch):
 # at the fit's); at a tenth the joints stay put and the photometric fit gains (docs/study.md, section 4).
 # The held-out refinement weighs it as the fit's later stages do: at 10 it held the held-out poses on the
 # keypoints, 1.5 dB below the poses the image asks for on the demo clip (docs/fit.md, held-out frames)
-@_term("keypoint_anchor", 10.0, _GEOMETRY | {StageKind.HELD_OUT},
+def _anchor_size(problem):
+    """With settings.anchor_size "free": the initial estimate's hand size (HandModel.size of its
+    shape), the size its keypoints, the anchor's targets, have; else None (the anchor in metres)."""
+    if problem.settings.anchor_size != "free":
+        return None
+    return problem.avatar.model.size(_initial_betas(problem)).detach()
+
+
+@_term("keypoint_anchor", 10.0, _GEOMETRY | {StageKind.HELD_OUT}, prepare=_anchor_size,
        stage_factors={StageKind.GEOMETRY: 0.1, StageKind.JOINT: 0.1, StageKind.HELD_OUT: 0.1})
 def _keypoint_anchor(batch):
-    return losses.keypoint_anchor_loss(batch.keypoints[:, :21], batch.problem.anchor_keypoints[batch.frames])
+    keypoints, initial_size = batch.keypoints[:, :21], batch.problem.term_data.get("keypoint_anchor")
+    if initial_size is not None:    # blind to the hand's size: the keypoints brought to the initial estimate's
+        avatar = batch.problem.avatar
+        keypoints = keypoints * (initial_size / avatar.model.size(avatar.betas))
+    return losses.keypoint_anchor_loss(keypoints, batch.problem.anchor_keypoints[batch.frames])
 
 
 @_term("temporal_pose", 10.0, _GEOMETRY)

@@ -120,7 +120,12 @@ def anchor_restarted(problem, restarted: dict):
 
 
 def _anchor_where_they_are(problem, index):
-    """The keypoint anchor of the fitted frames `index` moved to their poses' keypoints now."""
+    """The keypoint anchor of the fitted frames `index` moved to their poses' keypoints now (at the
+    initial estimate's size where the anchor is blind to the size, settings.anchor_size "free")."""
     if len(index):
-        _, keypoints = problem.avatar.posed(index)
+        avatar = problem.avatar
+        _, keypoints = avatar.posed(index)
+        initial_size = problem.term_data.get("keypoint_anchor")
+        if initial_size is not None:
+            keypoints = keypoints * (initial_size / avatar.model.size(avatar.betas))
         problem.anchor_keypoints[index] = keypoints[:, :21].to(problem.anchor_keypoints.dtype)

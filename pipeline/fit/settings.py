@@ -182,6 +182,11 @@ class FitSettings:
     # alone, but the fitted frames 0.1-1.1 dB lower and the joints 0.03-0.13 mm worse on both paths; on the demo
     # level: off (docs/fidelity.md)
     translation_smoothness: str = "metres"
+    # what the keypoint anchor holds of the initial estimate's keypoints: "held", their root-relative positions in
+    # metres (their size too: MediaPipe's, good to 2-3%), or "free", the same with the fitted hand brought to
+    # the initial estimate's size first (energy_terms._keypoint_anchor): the pose and the proportions held, the
+    # size left to the silhouettes and the size prior
+    anchor_size: str = "held"
     weights: dict = dataclasses.field(default_factory=default_weights)
     # {term: {stage name: factor}}: a term's weight in a stage, times this (energy_terms.EnergyTerm.stage_factors)
     stage_factors: dict = dataclasses.field(default_factory=dict)
@@ -206,6 +211,8 @@ class FitSettings:
             raise ValueError(f"size_anchor must be 'initial' or 'alignment', got {self.size_anchor!r}")
         if self.translation_smoothness not in ("metres", "camera"):
             raise ValueError(f"translation_smoothness must be 'metres' or 'camera', got {self.translation_smoothness!r}")
+        if self.anchor_size not in ("held", "free"):
+            raise ValueError(f"anchor_size must be 'held' or 'free', got {self.anchor_size!r}")
         if self.size_measure not in SIZE_MEASURES:
             raise ValueError(f"size_measure must be one of {', '.join(map(repr, SIZE_MEASURES))}, got {self.size_measure!r}")
         if not 0 <= self.size_tolerance < 1:
@@ -280,6 +287,7 @@ class FitSettings:
         values.setdefault("light_search", "off")          # saved before the light was searched
         values.setdefault("align_downscale", 1)           # saved before the alignment rendered smaller
         values.setdefault("translation_smoothness", "metres")   # saved before the choice
+        values.setdefault("anchor_size", "held")                # likewise
         # saved before the size was held by default: the size prior as it was then (weight 0 unless asked for)
         values.setdefault("size_anchor", "initial")
         values.setdefault("size_tolerance", SIZE_TOLERANCE)
