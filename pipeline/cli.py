@@ -114,6 +114,7 @@ def _fit(args):
                  albedo_openness=args.albedo_openness, albedo_passes=args.albedo_passes, albedo_fill=args.albedo_fill,
                  light_search=args.light_search, solve_resolution=args.solve_resolution,
                  size_anchor=args.size_anchor, size_tolerance=args.size_tolerance, size_measure=args.size_measure,
+                 anchor_size=args.anchor_size,
                  **({} if args.seed is None else {"seed": args.seed}),
                  **({} if weights is None else {"weights": weights}),
                  **({} if stage_factors is None else {"stage_factors": stage_factors}))
@@ -331,6 +332,10 @@ def build_parser():
                      help="what the size prior measures: the shape's scale parameter alone (scale, default: every "
                           "proportion free), the spread of all 21 keypoints (hand), or of the wrist and knuckles "
                           "(palm: the fingers' lengths stay free; docs/fidelity.md)")
+    fit.add_argument("--anchor-size", choices=("held", "free"), default=None,
+                     help="what the keypoint anchor holds of the initial keypoints: their positions in metres, "
+                          "their size included (held, default), or the pose and proportions alone, the fitted hand "
+                          "brought to their size first (free: the size left to the silhouettes; docs/fidelity.md)")
     fit.add_argument("--weight", action="append", default=None, metavar="NAME=VALUE",
                      help="an energy term's weight (repeatable), e.g. size_prior=1 (the terms and their defaults: "
                           "pipeline/fit/energy_terms.py; 0 switches a term off)")

@@ -110,9 +110,11 @@ def test_harp_fit_sets_term_weights_by_name_over_the_defaults(monkeypatch, capsy
 
 def test_harp_fit_sets_the_size_priors_anchor_and_band(monkeypatch):
     seen = _fit_options(monkeypatch, ["fit", "seq", "--out", "a", "--size-anchor", "initial", "--size-tolerance",
-                                      "0.01", "--size-measure", "palm"], ["fit", "seq", "--out", "a"])
+                                      "0.01", "--size-measure", "palm", "--anchor-size", "free"],
+                        ["fit", "seq", "--out", "a"])
     assert seen[0]["size_anchor"] == "initial" and seen[0]["size_tolerance"] == 0.01
-    assert seen[0]["size_measure"] == "palm"
+    assert seen[0]["size_measure"] == "palm" and seen[0]["anchor_size"] == "free"
+    assert seen[1]["anchor_size"] is None and settings_for("fast", 30).anchor_size == "held"
     assert seen[1]["size_anchor"] is None and seen[1]["size_tolerance"] is None     # the settings' defaults
     assert seen[1]["size_measure"] is None and settings_for("fast", 30).size_measure == "scale"
     with pytest.raises(ValueError, match="size_measure must be"):
