@@ -185,7 +185,8 @@ class FitSettings:
     # what the keypoint anchor holds of the initial estimate's keypoints: "held", their root-relative positions in
     # metres (their size too: MediaPipe's, good to 2-3%), or "free", the same with the fitted hand brought to
     # the initial estimate's size first (energy_terms._keypoint_anchor): the pose and the proportions held, the
-    # size left to the silhouettes and the size prior
+    # size left to the silhouettes and the size prior. On the phone-like clip's 3 seeds the size wandered as far
+    # either way (new poses -0.9 / +0.7 / +1.4 dB, joints level or worse): "held" (docs/fidelity.md)
     anchor_size: str = "held"
     weights: dict = dataclasses.field(default_factory=default_weights)
     # {term: {stage name: factor}}: a term's weight in a stage, times this (energy_terms.EnergyTerm.stage_factors)
