@@ -105,11 +105,6 @@ def _silhouette(batch):
     return losses.silhouette_loss(batch.images["alpha"], batch.masks, batch.silhouette_weight)
 
 
-# 10 (Table C.1) in the alignment, a tenth of it after: at 10 throughout it pulled the poses back to the
-# noisy initial keypoints once the silhouette had placed them (joint error 1.34 mm at the alignment's end, 2.32
-# at the fit's); at a tenth the joints stay put and the photometric fit gains (docs/study.md, section 4).
-# The held-out refinement weighs it as the fit's later stages do: at 10 it held the held-out poses on the
-# keypoints, 1.5 dB below the poses the image asks for on the demo clip (docs/fit.md, held-out frames)
 def _anchor_size(problem):
     """With settings.anchor_size "free": the initial estimate's hand size (HandModel.size of its
     shape), the size its keypoints, the anchor's targets, have; else None (the anchor in metres)."""
@@ -118,6 +113,13 @@ def _anchor_size(problem):
     return problem.avatar.model.size(_initial_betas(problem)).detach()
 
 
+# 10 (Table C.1) in the alignment, a tenth of it after: at 10 throughout it pulled the poses back to the
+# noisy initial keypoints once the silhouette had placed them (joint error 1.34 mm at the alignment's end, 2.32
+# at the fit's); at a tenth the joints stay put and the photometric fit gains (docs/study.md, section 4).
+# The held-out refinement weighs it as the fit's later stages do: at 10 it held the held-out poses on the
+# keypoints, 1.5 dB below the poses the image asks for on the demo clip (docs/fit.md, held-out frames).
+# After the alignment it also holds the hand's size: at 0 there the phone-like clip's joints came 15-19% nearer
+# the truth but the hand ended 0.4-1.0% smaller, new poses level or lower (docs/fidelity.md, "The size decides")
 @_term("keypoint_anchor", 10.0, _GEOMETRY | {StageKind.HELD_OUT}, prepare=_anchor_size,
        stage_factors={StageKind.GEOMETRY: 0.1, StageKind.JOINT: 0.1, StageKind.HELD_OUT: 0.1})
 def _keypoint_anchor(batch):
