@@ -123,11 +123,18 @@ def _anchor_size(problem):
 @_term("keypoint_anchor", 10.0, _GEOMETRY | {StageKind.HELD_OUT}, prepare=_anchor_size,
        stage_factors={StageKind.GEOMETRY: 0.1, StageKind.JOINT: 0.1, StageKind.HELD_OUT: 0.1})
 def _keypoint_anchor(batch):
-    keypoints, initial_size = batch.keypoints[:, :21], batch.problem.term_data.get("keypoint_anchor")
-    if initial_size is not None:    # blind to the hand's size: the keypoints brought to the initial estimate's
-        avatar = batch.problem.avatar
-        keypoints = keypoints * (initial_size / avatar.model.size(avatar.betas))
+    keypoints = at_anchor_size(batch.problem, batch.keypoints[:, :21])
     return losses.keypoint_anchor_loss(keypoints, batch.problem.anchor_keypoints[batch.frames])
+
+
+def at_anchor_size(problem, keypoints):
+    """Posed keypoints (B, K, 3) of the avatar as the keypoint anchor compares them: as they are, or
+    with settings.anchor_size "free" brought to the initial estimate's size (blind to the hand's size)."""
+    initial_size = problem.term_data.get("keypoint_anchor")
+    if initial_size is None:
+        return keypoints
+    avatar = problem.avatar
+    return keypoints * (initial_size / avatar.model.size(avatar.betas))
 
 
 @_term("temporal_pose", 10.0, _GEOMETRY)

@@ -21,6 +21,7 @@ import torch
 
 from .. import metrics
 from ..render.renderer import render
+from .energy_terms import at_anchor_size
 from .pose_interpolation import interpolated_poses
 
 LOST_IOU = 0.8          # a frame below this silhouette IoU after the alignment...
@@ -123,9 +124,6 @@ def _anchor_where_they_are(problem, index):
     """The keypoint anchor of the fitted frames `index` moved to their poses' keypoints now (at the
     initial estimate's size where the anchor is blind to the size, settings.anchor_size "free")."""
     if len(index):
-        avatar = problem.avatar
-        _, keypoints = avatar.posed(index)
-        initial_size = problem.term_data.get("keypoint_anchor")
-        if initial_size is not None:
-            keypoints = keypoints * (initial_size / avatar.model.size(avatar.betas))
-        problem.anchor_keypoints[index] = keypoints[:, :21].to(problem.anchor_keypoints.dtype)
+        _, keypoints = problem.avatar.posed(index)
+        keypoints = at_anchor_size(problem, keypoints[:, :21])
+        problem.anchor_keypoints[index] = keypoints.to(problem.anchor_keypoints.dtype)
