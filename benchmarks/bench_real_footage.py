@@ -2,7 +2,8 @@
 
     .venv/bin/python benchmarks/bench_real_footage.py VIDEO [--work DIR] [--preset fast]
         [--hold-out-every 10] [--size 448] [--max-frames N] [--pictures DIR] [--threads 1]
-        [--environment auto|on|off] [--specular auto|on|off] [--crop auto|frame|clip]
+        [--environment auto|on|off] [--specular auto|on|off] [--crop auto|frame|clip] [--seed 0]
+        [--fit-options JSON]
 
 1. `harp import-video VIDEO` without masks (MediaPipe landmarks + GrabCut make them),
 2. `harp init` (MediaPipe keypoints, the initial fit),
@@ -10,7 +11,8 @@
 4. `harp evaluate`: the held-out frames fitted in pose and light, scored against the built-in
    masks and the frames (PSNR / L1 / MS-SSIM in the mask, silhouette IoU).
 Prints wall time of each step and the figures; writes bench_real_footage.json into the avatar
-folder (DIR/avatar_PRESET, with _environment_SETTING and _specular_SETTING for those options). With
+folder (DIR/avatar_PRESET, with _environment_SETTING and _specular_SETTING for those options, _seedS for
+a seed other than 0 and _NAME_VALUE for each --fit-options override: FitSettings fields as JSON). With
 `--pictures DIR2`: DIR2/real_masks.png (masks over frames), real_fit_grid.png (fitted frames),
 real_held_out_grid.png (held-out frames). Finished steps are kept: rerun to resume.
 Measured on the MediaPipe sample video (see docs/real_footage.md).
@@ -61,15 +63,23 @@ def main(argv=None):
                         help="the fit's specular lobe (default: the fit's default); its own avatar folder")
     parser.add_argument("--crop", choices=("auto", "frame", "clip"), default="auto",
                         help="the import's crop (harp import-video --crop; the work folder keeps one sequence)")
+    parser.add_argument("--seed", type=int, default=0, help="the fit's seed (its own avatar folder other than 0)")
+    parser.add_argument("--fit-options", default="{}",
+                        help='FitSettings overrides as JSON, e.g. \'{"anchor_size": "free"}\' (their own avatar folders)')
     args = parser.parse_args(argv)
+    fit_options = json.loads(args.fit_options)
+    if not isinstance(fit_options, dict):
+        parser.error(f"--fit-options takes a JSON object, got {args.fit_options!r}")
     torch.set_num_threads(args.threads)
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     sequence = work / "sequence"
     avatar = work / (f"avatar_{args.preset}" + (f"_environment_{args.environment}" if args.environment else "")
-                     + (f"_specular_{args.specular}" if args.specular else ""))
+                     + (f"_specular_{args.specular}" if args.specular else "") + (f"_seed{args.seed}" if args.seed else "")
+                     + "".join(f"_{name}_{value}" for name, value in sorted(fit_options.items())))
     figures = {"video": str(args.video), "preset": args.preset, "threads": args.threads,
-               "environment": args.environment, "specular": args.specular}
+               "environment": args.environment, "specular": args.specular, "seed": args.seed,
+               "fit_options": fit_options}
 
     if not (sequence / seq.SEQUENCE_FILE).is_file():
         timed(figures, "import", lambda: import_video(args.video, None, sequence, size=args.size,
@@ -82,7 +92,8 @@ def main(argv=None):
     if not (avatar / "report.json").is_file():
         timed(figures, "fit", lambda: fit(sequence, avatar, preset=args.preset, progress="bar",
                                           hold_out_every=args.hold_out_every, device="cpu",
-                                          environment=args.environment, specular=args.specular))
+                                          environment=args.environment, specular=args.specular, seed=args.seed,
+                                          **fit_options))
     report = read_report(avatar)
     evaluation = timed(figures, "evaluate", lambda: evaluate_fit(avatar, sequence, device="cpu", progress="bar"))
 
