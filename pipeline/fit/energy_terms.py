@@ -118,8 +118,10 @@ def _anchor_size(problem):
 # at the fit's); at a tenth the joints stay put and the photometric fit gains (docs/study.md, section 4).
 # The held-out refinement weighs it as the fit's later stages do: at 10 it held the held-out poses on the
 # keypoints, 1.5 dB below the poses the image asks for on the demo clip (docs/fit.md, held-out frames).
-# After the alignment it also holds the hand's size: at 0 there the phone-like clip's joints came 15-19% nearer
-# the truth but the hand ended 0.4-1.0% smaller, new poses level or lower (docs/fidelity.md, "The size decides")
+# After the alignment it also holds the hand's size, which no frame tells: at 0 there the joints came 15-23%
+# nearer the truth on the phone-like and demo clips' 3 seeds each, but the size wandered (0.4-1.0% smaller on
+# the phone-like clip, one demo seed 4% larger) and neither the palm's size held nor the whole hand's gave it
+# back without giving back the joints (docs/fidelity.md, "The hand's size is not in the clip")
 @_term("keypoint_anchor", 10.0, _GEOMETRY | {StageKind.HELD_OUT}, prepare=_anchor_size,
        stage_factors={StageKind.GEOMETRY: 0.1, StageKind.JOINT: 0.1, StageKind.HELD_OUT: 0.1})
 def _keypoint_anchor(batch):
