@@ -21,10 +21,6 @@ LAMP = np.array([0.2, -0.25, 0.15])      # about 0.4 m from the hand: near enoug
 
 @pytest.fixture(scope="module")
 def scene():
-    return _scene()
-
-
-def _scene():
     model = HandModel.load("hand", subdivided=True)
     pose = torch.as_tensor(np.stack([NAMED_POSES["fist"], NAMED_POSES["spread"]]), dtype=torch.float32)
     orient = torch.tensor([[np.pi - 0.5, 0.4, 0.2], [np.pi, 0.3, 0.0]])
@@ -69,11 +65,11 @@ def test_with_shadows_the_scene_scaled_renders_nearly_the_same_frames(scene, sca
 
 
 def test_the_hand_scaled_alone_does_not(scene):
-    """The reference: the hand 7% larger where it was changes the frames (the test above is no
-    renderer blind to the scale)."""
+    """The reference: the hand 7% larger in the same place changes the frames, so the tests above do
+    not pass for a renderer that ignores the scale."""
     points, mesh, albedo, K = scene
     centre = points.mean(1, keepdim=True)
-    larger = (scene[0] - centre) * 1.07 + centre
+    larger = (points - centre) * 1.07 + centre
     light = Light(torch.as_tensor(LAMP, dtype=torch.float64), torch.tensor(0.1, dtype=torch.float64))
     as_is, grown = (render(p, mesh, K, SIZE, SIZE, outputs=("alpha",), appearance=Appearance(albedo), light=light,
                            antialiased=False) for p in (points, larger))
