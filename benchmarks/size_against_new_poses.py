@@ -1,6 +1,6 @@
 """Benchmark: how far the fitted hand's size explains its new-pose score, over evaluated fits.
 
-    .venv/bin/python benchmarks/size_against_new_poses.py AVATAR... [--labels A,B,..] [--picture PNG]
+    .venv/bin/python benchmarks/size_against_new_poses.py [LABEL=]AVATAR... [--picture PNG]
 
 Each AVATAR is a fit evaluated with `harp evaluate AVATAR SEQ --novel-poses` on a synthetic clip
 (its evaluation.json). AVATARs given as LABEL=AVATAR are grouped under LABEL (default: one group).
@@ -40,7 +40,8 @@ def plot(groups: dict, path: Path):
     from matplotlib import pyplot
 
     figure, axes = pyplot.subplots(figsize=(6.4, 4.2), dpi=120)
-    for (label, rows), colour in zip(groups.items(), ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple")):
+    for index, (label, rows) in enumerate(groups.items()):
+        colour = f"C{index % 10}"      # matplotlib's colour cycle: every group drawn, however many
         sizes = [100 * (row["scale"] - 1) for row in rows]
         axes.scatter(sizes, [row["new_poses"] for row in rows], color=colour, label=label)
         axes.scatter(sizes, [row["new_poses_at_true_size"] for row in rows], facecolors="none", edgecolors=colour)
