@@ -131,6 +131,18 @@ def polished(fit, sequence, steps, move_shape=False, seed=0, light_size=False, t
     return problem.avatar, seconds, decision, texels
 
 
+def write_replayed(avatar, fit, out, checkpoint=False):
+    """The fit folder copied to `out` with the replayed `avatar`'s albedo.png, and with `checkpoint` its
+    parameters in out's checkpoint.pt (which `harp evaluate OUT SEQ` reads). Returns the (H, W, 3) albedo."""
+    shutil.copytree(fit, out, dirs_exist_ok=True)
+    albedo = avatar.albedo.detach().clamp(0, 1).permute(1, 2, 0).cpu().numpy()
+    write_png(Path(out) / av.ALBEDO_FILE, np.round(albedo * 255).astype(np.uint8))
+    if checkpoint:
+        saved, _ = load_finished_fit(fit, "cpu")
+        state = {name: value.detach().clone() for name, value in avatar.state_dict().items()}
+        save_checkpoint(Path(out) / CHECKPOINT_FILE, dataclasses.replace(saved, avatar=state))
+    return albedo
+
 def sharpness_at(albedo, sequence, size=COMPARED_SIZE):
     """The sharpness ratio of an (H, W, 3) albedo shrunk (or grown) to `size` against the truth at `size`."""
     truth = albedo_truth(sequence, size)
@@ -164,13 +176,7 @@ def main():
                                                  texture_size=args.texture_size,
                                                  solve_resolution=args.solve_resolution,
                                                  fit_options=args.fit_options, true_light=args.true_light)
-    shutil.copytree(args.fit, args.out, dirs_exist_ok=True)
-    albedo = avatar.albedo.detach().clamp(0, 1).permute(1, 2, 0).cpu().numpy()
-    write_png(args.out / av.ALBEDO_FILE, np.round(albedo * 255).astype(np.uint8))
-    if args.checkpoint:
-        saved, _ = load_finished_fit(args.fit, "cpu")
-        state = {name: value.detach().clone() for name, value in avatar.state_dict().items()}
-        save_checkpoint(args.out / CHECKPOINT_FILE, dataclasses.replace(saved, avatar=state))
+    albedo = write_replayed(avatar, args.fit, args.out, args.checkpoint)
     result = evaluate_fidelity(args.out, args.sequence)
     texture, poses = result["texture"], result["new_poses"]
     print(json.dumps({"fit": str(args.fit), "steps": args.steps, "move_shape": args.move_shape,
