@@ -219,8 +219,10 @@ def _initial_betas(problem):
     return torch.as_tensor(problem.initial.betas, dtype=problem.avatar.betas.dtype, device=problem.device)
 
 
-# ours, off by default (weight 0) until measured: the shape held near the initial estimate's (from the
-# keypoints' bone lengths) against the drift of long fits (docs/fidelity.md)
+# ours, off (weight 0): the shape held near the initial estimate's (from the keypoints' bone lengths) against
+# the drift of long fits; measured on the phone-like clip at weights 1 and 0.1 it was worse on every figure
+# (held out -0.7 to -1 dB, joints +0.3 mm, surface +0.15 mm): it keeps the silhouettes from correcting the
+# proportions, and the size's drift is the held scale's to stop (docs/fidelity.md)
 @_term("shape_prior", 0.0, _GEOMETRY, prepare=_initial_betas)
 def _shape_prior(batch):
     return losses.shape_prior_loss(batch.problem.avatar.betas, batch.problem.term_data["shape_prior"])
