@@ -229,7 +229,7 @@ JOBS = {job.name: (job, function) for job, function in (
          block="fit_figures", needs=("demo",)), _bench_fit),
     (Job("blender_bind", 0.2, "the demo's avatar bound into Blender, rendered over its footage",
          pictures=("blender_bind.png",), needs=("demo",)), _blender_bind),
-    (Job("blender_left", 5.0, "a left hand + forearm fitted from a synthetic clip and bound into Blender",
+    (Job("blender_left", 3.0, "a left hand + forearm fitted from a synthetic clip and bound into Blender",
          pictures=("blender_left.png",), block="left_hand_figures"), _blender_left),
     (Job("blender_rigify", 0.2, "the demo's motion on a generated Rigify rig",
          pictures=("blender_rigify.png",), needs=("demo",)), _blender_rigify),
