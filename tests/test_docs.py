@@ -16,8 +16,20 @@ FENCE = re.compile(r"```.*?```", re.S)          # code blocks: their brackets ar
 HEADING = re.compile(r"#{1,6}\s+(.*)")
 
 
+def _make_docs():
+    """tools/make_docs.py as a module (tools/ is not a package)."""
+    import importlib.util
+    import sys
+    if "make_docs" not in sys.modules:          # its dataclass needs the module registered while it loads
+        spec = importlib.util.spec_from_file_location("make_docs", ROOT / "tools" / "make_docs.py")
+        sys.modules["make_docs"] = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(sys.modules["make_docs"])
+    return sys.modules["make_docs"]
+
+
 def documents(root=ROOT):
-    return [root / "README.md"] + sorted((root / "docs").glob("*.md"))
+    """README.md and docs/*.md: the pages make_docs writes into and these tests read."""
+    return _make_docs().pages(root)
 
 
 def heading_anchor(text):
@@ -84,16 +96,6 @@ def test_the_check_finds_a_missing_picture_a_missing_heading_and_an_unshown_pict
 
 
 # ---- what tools/make_docs.py writes: its blocks and its pictures' stamps ------------------------------------------
-
-def _make_docs():
-    import importlib.util
-    import sys
-    if "make_docs" not in sys.modules:          # its dataclass needs the module registered while it loads
-        spec = importlib.util.spec_from_file_location("make_docs", ROOT / "tools" / "make_docs.py")
-        sys.modules["make_docs"] = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(sys.modules["make_docs"])
-    return sys.modules["make_docs"]
-
 
 STAMP = re.compile(r"commit [0-9a-f]{7}, \d{4}-\d{2}-\d{2}")
 

@@ -131,7 +131,7 @@ class Job:
     name: str
     minutes: float            # on this project's 2-core CPU, measured
     what: str
-    pictures: tuple = ()      # files of docs/ it writes
+    pictures: tuple = ()      # files it writes into its work folder, for docs/
     block: str | None = None  # the table it writes
     needs: tuple = ()         # jobs whose work folder it reads
 
@@ -152,16 +152,16 @@ PYTHON = sys.executable
 
 
 def _hand_model(work, log, threads):
-    _run([PYTHON, "-m", "pipeline.cli", "model", "preview", "--out", DOCS / "hand_model.png"], log, threads)
+    _run([PYTHON, "-m", "pipeline.cli", "model", "preview", "--out", work / "hand_model.png"], log, threads)
 
 
 def _renderer_vs_blender(work, log, threads):
-    _run([PYTHON, ROOT / "tools/picture_renderer_vs_blender.py", "--out", DOCS / "renderer_vs_blender.png"],
+    _run([PYTHON, ROOT / "tools/picture_renderer_vs_blender.py", "--out", work / "renderer_vs_blender.png"],
          log, threads)
 
 
 def _synth_contact_sheet(work, log, threads):
-    _run([PYTHON, ROOT / "tools/synth_contact_sheet.py", "--out", DOCS / "synth_contact_sheet.png"], log, threads)
+    _run([PYTHON, ROOT / "tools/synth_contact_sheet.py", "--out", work / "synth_contact_sheet.png"], log, threads)
 
 
 def _demo(work, log, threads):
@@ -171,7 +171,7 @@ def _demo(work, log, threads):
     (work / "wall_seconds.txt").write_text(f"{time.time() - start:.1f}\n")
     for source, target in (("avatar/fit_grid.png", "demo_fit_grid.png"), ("avatar_fist.png", "demo_avatar_fist.png"),
                            ("avatar_thumbs_up.png", "demo_avatar_thumbs_up.png")):
-        shutil.copyfile(work / source, DOCS / target)
+        shutil.copyfile(work / source, work / target)
     return demo_table(work)
 
 
@@ -193,7 +193,7 @@ def _blender_left(work, log, threads):
     _run([PYTHON, "-m", "pipeline.cli", "init", clip], log, threads)
     _run([PYTHON, "-m", "pipeline.cli", "fit", clip, "--out", avatar, "--progress", "none", "--threads", threads],
          log, threads)
-    _run([PYTHON, ROOT / "tools/picture_blender_bind.py", avatar, "--out", DOCS / "blender_left.png"], log, threads)
+    _run([PYTHON, ROOT / "tools/picture_blender_bind.py", avatar, "--out", work / "blender_left.png"], log, threads)
     report = json.loads((avatar / "report.json").read_text())
     fitted = report["metrics"]
     return markdown_table([
@@ -205,12 +205,12 @@ def _blender_left(work, log, threads):
 
 
 def _blender_bind(work, log, threads, demo):
-    _run([PYTHON, ROOT / "tools/picture_blender_bind.py", demo / "avatar", "--out", DOCS / "blender_bind.png",
+    _run([PYTHON, ROOT / "tools/picture_blender_bind.py", demo / "avatar", "--out", work / "blender_bind.png",
           "--frames", "2,16"], log, threads)
 
 
 def _blender_rigify(work, log, threads, demo):
-    _run([PYTHON, ROOT / "tools/picture_rigify.py", demo / "avatar", "--out", DOCS / "blender_rigify.png"],
+    _run([PYTHON, ROOT / "tools/picture_rigify.py", demo / "avatar", "--out", work / "blender_rigify.png"],
          log, threads)
 
 
@@ -347,7 +347,8 @@ def run_jobs(names, work, threads=2, log=print):
             (folder / "finished.txt").write_text(commit + "\n")
             if name not in names:
                 continue
-            for picture in job.pictures:
+            for picture in job.pictures:       # written into its work folder; docs/ gets them only here
+                shutil.copyfile(folder / picture, DOCS / picture)
                 stamp_png(DOCS / picture, commit)
             if job.block:
                 written = write_block(job.block, table, f"commit {commit}, {today}")
