@@ -6,7 +6,7 @@ import signal
 import sys
 from pathlib import Path
 
-from .threads import configure_threads
+from .threads import available_cores, configure_threads
 
 
 def _model_build(args):
@@ -144,15 +144,30 @@ def _addon_build(args):
     print(f"wrote {build_addon(args.out)} (validated with Blender's blender_ext.py)")
 
 
+def _seed_list(text):
+    try:
+        seeds = tuple(int(part) for part in text.split(",") if part.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"seeds are whole numbers separated by commas, got {text!r}") from None
+    if not seeds:
+        raise argparse.ArgumentTypeError("give at least one seed")
+    return seeds
+
+
 def _study(args):
+    if args.jobs < 1:
+        raise ValueError(f"--jobs must be at least 1 (got {args.jobs})")
     configure_threads(args.threads)
+    # with several jobs --threads is each job's; by default the cores are shared out between them
+    threads_per_job = args.threads or max(1, available_cores() // args.jobs)
     from .evaluate.study import run_study
 
     study = run_study(args.dataset, args.out, clips=args.clips, quick=args.quick, preset=args.preset,
                       sections=tuple(args.sections.split(",")), progress=args.progress,
                       runtime_presets=tuple(args.runtime_presets.split(",")), runtime_frames=args.runtime_frames,
                       stability_scale=args.stability_scale,
-                      stability_kinds=tuple(args.stability_kinds.split(",")) if args.stability_kinds else None)
+                      stability_kinds=tuple(args.stability_kinds.split(",")) if args.stability_kinds else None,
+                      seeds=args.seeds, jobs=args.jobs, threads=threads_per_job)
     print(f"wrote {Path(args.out) / 'study.md'} ({study['seconds'] / 60:.0f} min)")
 
 
@@ -400,6 +415,12 @@ def build_parser():
     study.add_argument("--stability-kinds", default=None, metavar="KINDS",
                        help="the sweep's cases of these kinds only, e.g. baseline,poses,shapes,framing,inputs "
                             "(default: all: baseline, poses, shapes, framing, inputs, rates, weights)")
+    study.add_argument("--seeds", type=_seed_list, default=(0,), metavar="S,S,...",
+                       help="fit seeds of the refinement fits, e.g. 0,1,2: the means come with their seed spread "
+                            "(default: 0)")
+    study.add_argument("--jobs", type=int, default=1, metavar="N",
+                       help="fits run at once, each in a process of its own (default: 1; two fits of one thread "
+                            "each share a 2-core machine at about the time of one)")
     study.add_argument("--progress", choices=("bar", "jsonl", "none"), default="none",
                        help="progress of each fit (default: none; the study logs each run)")
     study.set_defaults(run=_study)

@@ -182,6 +182,33 @@ def test_study_on_two_tiny_clips_fills_every_cell(tmp_path):
     assert saved["sections"]["stability"]["rows"] == stability["rows"]
 
 
+def test_study_seeds_in_worker_processes_match_the_study_run_here(tmp_path):
+    dataset = tmp_path / "dataset"
+    write_clip(dataset / "tiny_flip_front_ambient", OPEN, size=96, frames=5, turn_degrees=30)
+    fingers = np.stack([OPEN + (FIST - OPEN) * t for t in np.linspace(0, 0.5, 5)])
+    write_clip(dataset / "tiny_fingers_front_ambient", fingers, size=96, frames=5, turn_degrees=5)
+    options = dict(max_steps=2, resolution=96, texture_size=64, batch_size=2, device="cpu", quick=True,
+                   sections=("refinement",), log=lambda message: None)
+    pooled = run_study(dataset, tmp_path / "pooled", seeds=(0, 1), jobs=2, threads=1, **options)
+    here = run_study(dataset, tmp_path / "here", seeds=(0,), **options)
+
+    def figures(rows, seed):
+        return [{k: v for k, v in row.items() if k != "fit_seconds"} for row in rows if row["seed"] == seed]
+
+    rows = pooled["sections"]["refinement"]["rows"]
+    assert figures(rows, 0) == figures(here["sections"]["refinement"]["rows"], 0)     # bit for bit
+    assert [row["case"] for row in rows if row["seed"] == 1 and row["clip"].startswith("tiny_fingers")] == list(CASES)
+    assert (tmp_path / "pooled" / "fits" / "tiny_fingers_front_ambient" / "seed1" / "known" / "report.json").is_file()
+    full = {row["seed"]: row["joint_mm"] for row in rows if row["case"] == "HARP-full" and row["clip"].startswith("tiny_f")}
+    assert full[0] != full[1]                                   # the seed changes the fit
+    means = pooled["sections"]["refinement"]["means"]["all"]["HARP-full"]
+    lowest, highest = means["joint_mm_spread"]
+    assert lowest < highest and lowest <= means["joint_mm"] <= highest
+    assert here["sections"]["refinement"]["means"]["all"]["HARP-full"]["joint_mm_spread"] is None
+    text = (tmp_path / "pooled" / "study.md").read_text()
+    assert "fit seeds 0, 1" in text and f"{means['joint_mm']:.2f} ({lowest:.2f}-{highest:.2f})" in text
+
+
 def test_a_target_counts_as_reached_only_once_the_curve_stays_there():
     from pipeline.evaluate.study import _at_most, _settled_time
 

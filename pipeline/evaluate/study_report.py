@@ -63,24 +63,37 @@ def markdown(study):
 
 
 def _refinement_tables(section):
+    seeds = section.get("seeds") or [0]
+    spread = len(seeds) > 1
+    seed_text = (f" Each fit ran with the fit seeds {', '.join(map(str, seeds))}, all from the same initial estimate: "
+                 "a figure is the mean over the seeds (and the clips), and in brackets the lowest and highest of "
+                 "its per-seed means (the seed spread)." if spread else f" Fit seed {seeds[0]}.")
     lines = ["## 1. Pose refinement", "",
              "Every fit starts from `gt-noise` (10 degrees on every joint, 1 cm on the wrist). Errors in mm on the "
              "fitted frames: joints (21 keypoints) and the model's vertices, Procrustes-aligned (PA) and in the "
-             "camera frame (cam).", "", "### Means", "",
+             f"camera frame (cam).{seed_text}", "", "### Means", "",
              "| motion | case | clips | joint PA | vertex PA | joint cam | vertex cam |", "|---|---|---|---|---|---|---|"]
     for motion, cases in section["means"].items():
         for case, figures in cases.items():
-            lines.append(f"| {motion} | {case} | {figures['clips']} | {_number(figures['joint_mm'])} | "
-                         f"{_number(figures['vertex_mm'])} | {_number(figures['joint_camera_mm'])} | "
-                         f"{_number(figures['vertex_camera_mm'])} |")
+            lines.append(f"| {motion} | {case} | {figures['clips']} | "
+                         + " | ".join(_with_spread(figures, name) for name in
+                                      ("joint_mm", "vertex_mm", "joint_camera_mm", "vertex_camera_mm")) + " |")
     lines += ["", "### Per clip", "", "| clip | case | joint PA | vertex PA | joint cam | vertex cam | fit s |",
               "|---|---|---|---|---|---|---|"]
-    for row in section["rows"]:
+    for row in section.get("per_clip") or section["rows"]:
         note = f" ({row['note']})" if row.get("note") else ""
-        lines.append(f"| {row['clip']} | {row['case']}{note} | {_number(row['joint_mm'])} | {_number(row['vertex_mm'])} | "
-                     f"{_number(row['joint_camera_mm'])} | {_number(row['vertex_camera_mm'])} | "
-                     f"{_number(row['fit_seconds'], 0)} |")
+        lines.append(f"| {row['clip']} | {row['case']}{note} | "
+                     + " | ".join(_with_spread(row, name) for name in
+                                  ("joint_mm", "vertex_mm", "joint_camera_mm", "vertex_camera_mm"))
+                     + f" | {_number(row['fit_seconds'], 0)} |")
     return lines + [""]
+
+
+def _with_spread(figures, name):
+    """"3.53 (3.41-3.66)": the mean and its per-seed lowest and highest, where there are several."""
+    spread = figures.get(f"{name}_spread")
+    value = _number(figures.get(name))
+    return value if not spread else f"{value} ({spread[0]:.2f}-{spread[1]:.2f})"
 
 
 def _runtime_table(section):
@@ -201,12 +214,14 @@ def refinement_bars(section, path):
 
 
 def refinement_curves(section, out):
-    """Per clip: the curves of its HARP-sil, HARP-full and HARP-known fits."""
+    """Per clip: the curves of its HARP-sil, HARP-full and HARP-known fits of the first seed."""
+    seed = (section.get("seeds") or [0])[0]
     paths = {}
     for clip in sorted({row["clip"] for row in section["rows"]}):
-        folders = [(name, out / "fits" / clip / name) for name in ("sil", "full", "known")]
+        fits = out / "fits" / clip / f"seed{seed}"
+        folders = [(name, fits / name) for name in ("sil", "full", "known")]
         folders = [(name, folder) for name, folder in folders if (folder / "curve.json").is_file()]
         if folders:
             paths[clip] = plot_curves([folder for _, folder in folders], out / PLOTS / f"refinement_{clip}.png",
-                                      labels=[f"HARP-{name}" for name, _ in folders], title=clip)
+                                      labels=[f"HARP-{name}" for name, _ in folders], title=f"{clip}, seed {seed}")
     return paths
