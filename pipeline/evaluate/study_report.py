@@ -9,6 +9,7 @@ from pathlib import Path
 from .plot import plot_curves, save_figure
 
 STUDY_FILE, STUDY_JSON, PLOTS = "study.md", "study.json", "plots"
+REFINEMENT_FIGURES = ("joint_mm", "vertex_mm", "joint_camera_mm", "vertex_camera_mm", "joint_end_over_min")
 
 
 def write_outputs(out, study):
@@ -71,20 +72,22 @@ def _refinement_tables(section):
     lines = ["## 1. Pose refinement", "",
              "Every fit starts from `gt-noise` (10 degrees on every joint, 1 cm on the wrist). Errors in mm on the "
              "fitted frames: joints (21 keypoints) and the model's vertices, Procrustes-aligned (PA) and in the "
-             f"camera frame (cam).{seed_text}", "", "### Means", "",
-             "| motion | case | clips | joint PA | vertex PA | joint cam | vertex cam |", "|---|---|---|---|---|---|---|"]
+             f"camera frame (cam); \"end / lowest\": the joint error at the fit's end over the lowest its curve "
+             f"reached.{seed_text}", "", "### Means", "",
+             "| motion | case | clips | joint PA | vertex PA | joint cam | vertex cam | joint PA end / lowest |",
+             "|---|---|---|---|---|---|---|---|"]
     for motion, cases in section["means"].items():
         for case, figures in cases.items():
             lines.append(f"| {motion} | {case} | {figures['clips']} | "
                          + " | ".join(_with_spread(figures, name) for name in
-                                      ("joint_mm", "vertex_mm", "joint_camera_mm", "vertex_camera_mm")) + " |")
-    lines += ["", "### Per clip", "", "| clip | case | joint PA | vertex PA | joint cam | vertex cam | fit s |",
-              "|---|---|---|---|---|---|---|"]
+                                      REFINEMENT_FIGURES) + " |")
+    lines += ["", "### Per clip", "",
+              "| clip | case | joint PA | vertex PA | joint cam | vertex cam | joint PA end / lowest | fit s |",
+              "|---|---|---|---|---|---|---|---|"]
     for row in section.get("per_clip") or section["rows"]:
         note = f" ({row['note']})" if row.get("note") else ""
         lines.append(f"| {row['clip']} | {row['case']}{note} | "
-                     + " | ".join(_with_spread(row, name) for name in
-                                  ("joint_mm", "vertex_mm", "joint_camera_mm", "vertex_camera_mm"))
+                     + " | ".join(_with_spread(row, name) for name in REFINEMENT_FIGURES)
                      + f" | {_number(row['fit_seconds'], 0)} |")
     return lines + [""]
 
