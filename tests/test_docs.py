@@ -102,7 +102,7 @@ STAMP = re.compile(r"commit [0-9a-f]{7}, \d{4}-\d{2}-\d{2}")
 
 def test_each_generated_block_names_a_job_carries_its_commit_and_reads_the_same_on_every_page():
     make_docs = _make_docs()
-    job_blocks = {job.block for job, _ in make_docs.JOBS.values() if job.block}
+    job_blocks = {block for job, _ in make_docs.JOBS.values() for block in job.blocks}
     seen = {}
     for page in documents():
         for name, (stamp, body) in make_docs.blocks(page.read_text(encoding="utf-8")).items():
@@ -121,10 +121,10 @@ def test_each_generated_picture_carries_the_commit_the_manifest_names():
         assert name in manifest, f"job {name} has never been run: tools/make_docs.py --only {name}"
         for picture in job.pictures:
             assert make_docs.read_png_stamp(ROOT / "docs" / picture) == manifest[name]["commit"], picture
-        if job.block:
-            stamp = next(make_docs.blocks(page.read_text(encoding="utf-8"))[job.block][0]
-                         for page in documents() if job.block in make_docs.blocks(page.read_text(encoding="utf-8")))
-            assert stamp.startswith(f"commit {manifest[name]['commit']}, "), (name, stamp)
+        for block in job.blocks:
+            stamp = next(make_docs.blocks(page.read_text(encoding="utf-8"))[block][0]
+                         for page in documents() if block in make_docs.blocks(page.read_text(encoding="utf-8")))
+            assert stamp.startswith(f"commit {manifest[name]['commit']}, "), (name, block, stamp)
 
 
 def test_make_docs_replaces_a_block_on_every_page_and_stamps_a_picture_without_touching_its_pixels(tmp_path):

@@ -132,7 +132,7 @@ class Job:
     minutes: float            # on this project's 2-core CPU, measured
     what: str
     pictures: tuple = ()      # files it writes into its work folder, for docs/
-    block: str | None = None  # the table it writes
+    blocks: tuple = ()        # the tables it writes: its function returns {block: table} (one block: the table)
     needs: tuple = ()         # jobs whose work folder it reads
 
 
@@ -214,6 +214,31 @@ def _blender_rigify(work, log, threads, demo):
          log, threads)
 
 
+STUDY_SET = ["--identities", "small-verylight,medium-light", "--motions", "flip,fingers", "--views", "front"]
+STUDY_SEEDS = "0,1,2"
+STUDY_RUNTIME_PRESETS = "preview,fast,full"     # `paper` (HARP's schedule, 25 min more) is measured in performance.md
+
+
+def _study(work, log, threads):
+    """The study's four standard clips rendered, then its refinement (3 fit seeds) and run-time sections,
+    `threads` fits at once of one thread each (two such fits share 2 cores at the time of one)."""
+    from pipeline.evaluate import study_report
+
+    dataset, study = work / "dataset", work / "study"
+    _run([PYTHON, ROOT / "synth/dataset.py", "--out", dataset, *STUDY_SET], log, threads)
+    _run([PYTHON, "-m", "pipeline.cli", "study", dataset, "--out", study, "--sections", "refinement,runtime",
+          "--seeds", STUDY_SEEDS, "--runtime-presets", STUDY_RUNTIME_PRESETS, "--jobs", threads, "--threads", 1],
+         log, threads)
+    sections = json.loads((study / "study.json").read_text())["sections"]
+    refinement, runtime = sections["refinement"], sections["runtime"]
+    shutil.copyfile(study / "plots" / "refinement.png", work / "study_refinement.png")
+    shutil.copyfile(study / "plots" / f"runtime_{runtime['clip']}.png", work / "study_runtime.png")
+    return {"study_means": study_report.refinement_means_table(refinement),
+            "study_per_clip": study_report.refinement_per_clip_table(refinement),
+            "study_runtime": study_report.runtime_table(runtime),
+            "study_summary": study_report.refinement_summary_table(refinement)}
+
+
 JOBS = {job.name: (job, function) for job, function in (
     (Job("hand_model", 0.1, "the hand model in its rest pose, four poses and its UV atlas (`harp model preview`)",
          pictures=("hand_model.png",)), _hand_model),
@@ -223,16 +248,20 @@ JOBS = {job.name: (job, function) for job, function in (
          pictures=("synth_contact_sheet.png",)), _synth_contact_sheet),
     (Job("demo", 3.7, "`harp demo`: its fit grid, its avatar in new poses and its figures",
          pictures=("demo_fit_grid.png", "demo_avatar_fist.png", "demo_avatar_thumbs_up.png"),
-         block="demo_figures"), _demo),
+         blocks=("demo_figures",)), _demo),
     (Job("bench_fit", 15.0, "the fit on the demo clip with held-out frames, from `gt-noise`, under `sun`, and "
                             "without its perceptual term (`benchmarks/bench_fit.py`)",
-         block="fit_figures", needs=("demo",)), _bench_fit),
+         blocks=("fit_figures",), needs=("demo",)), _bench_fit),
     (Job("blender_bind", 0.2, "the demo's avatar bound into Blender, rendered over its footage",
          pictures=("blender_bind.png",), needs=("demo",)), _blender_bind),
     (Job("blender_left", 3.0, "a left hand + forearm fitted from a synthetic clip and bound into Blender",
-         pictures=("blender_left.png",), block="left_hand_figures"), _blender_left),
+         pictures=("blender_left.png",), blocks=("left_hand_figures",)), _blender_left),
     (Job("blender_rigify", 0.2, "the demo's motion on a generated Rigify rig",
          pictures=("blender_rigify.png",), needs=("demo",)), _blender_rigify),
+    (Job("study", 110.0, "the pose-refinement study on the four standard clips (3 fit seeds) and the presets' "
+                         "error against run time (`harp study`, two fits at once)",
+         pictures=("study_refinement.png", "study_runtime.png"),
+         blocks=("study_means", "study_per_clip", "study_runtime", "study_summary")), _study),
 )}
 
 
@@ -350,12 +379,13 @@ def run_jobs(names, work, threads=2, log=print):
             for picture in job.pictures:       # written into its work folder; docs/ gets them only here
                 shutil.copyfile(folder / picture, DOCS / picture)
                 stamp_png(DOCS / picture, commit)
-            if job.block:
-                written = write_block(job.block, table, f"commit {commit}, {today}")
-                log(f"  {job.block}: {', '.join(p.relative_to(ROOT).as_posix() for p in written)}")
+            tables = table if isinstance(table, dict) else dict(zip(job.blocks, [table]))
+            for block in job.blocks:
+                written = write_block(block, tables[block], f"commit {commit}, {today}")
+                log(f"  {block}: {', '.join(p.relative_to(ROOT).as_posix() for p in written)}")
             minutes = (time.time() - start) / 60
             manifest[name] = {"commit": commit, "date": today, "minutes": round(minutes, 1),
-                              "pictures": [f"docs/{p}" for p in job.pictures], "block": job.block}
+                              "pictures": [f"docs/{p}" for p in job.pictures], "blocks": list(job.blocks)}
             MANIFEST.write_text(json.dumps(manifest, indent=1, sort_keys=True) + "\n")
             log(f"  done in {minutes:.1f} min")
     return manifest
@@ -371,7 +401,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     if args.list:
         for job, _ in JOBS.values():
-            writes = [f"docs/{p}" for p in job.pictures] + ([f"block {job.block}"] if job.block else [])
+            writes = [f"docs/{p}" for p in job.pictures] + [f"block {block}" for block in job.blocks]
             print(f"{job.name:22s} {job.minutes:4.1f} min  {job.what}; writes {', '.join(writes)}")
         return 0
     try:

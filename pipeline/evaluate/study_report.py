@@ -65,31 +65,50 @@ def markdown(study):
 
 def _refinement_tables(section):
     seeds = section.get("seeds") or [0]
-    spread = len(seeds) > 1
     seed_text = (f" Each fit ran with the fit seeds {', '.join(map(str, seeds))}, all from the same initial estimate: "
                  "a figure is the mean over the seeds (and the clips), and in brackets the lowest and highest of "
-                 "its per-seed means (the seed spread)." if spread else f" Fit seed {seeds[0]}.")
-    lines = ["## 1. Pose refinement", "",
-             "Every fit starts from `gt-noise` (10 degrees on every joint, 1 cm on the wrist). Errors in mm on the "
-             "fitted frames: joints (21 keypoints) and the model's vertices, Procrustes-aligned (PA) and in the "
-             f"camera frame (cam); \"end / lowest\": the joint error at the fit's end over the lowest its curve "
-             f"reached.{seed_text}", "", "### Means", "",
-             "| motion | case | clips | joint PA | vertex PA | joint cam | vertex cam | joint PA end / lowest |",
+                 "its per-seed means (the seed spread)." if len(seeds) > 1 else f" Fit seed {seeds[0]}.")
+    return ["## 1. Pose refinement", "",
+            "Every fit starts from `gt-noise` (10 degrees on every joint, 1 cm on the wrist). Errors in mm on the "
+            "fitted frames: joints (21 keypoints) and the model's vertices, Procrustes-aligned (PA) and in the "
+            "camera frame (cam); \"end / lowest\": the joint error at the fit's end over the lowest its curve "
+            f"reached.{seed_text}", "", "### Means", "", refinement_means_table(section), "### Per clip", "",
+            refinement_per_clip_table(section)]
+
+
+def refinement_means_table(section):
+    """The markdown table of the refinement's means per motion and case (with the seed spread)."""
+    lines = ["| motion | case | clips | joint PA | vertex PA | joint cam | vertex cam | joint PA end / lowest |",
              "|---|---|---|---|---|---|---|---|"]
     for motion, cases in section["means"].items():
         for case, figures in cases.items():
             lines.append(f"| {motion} | {case} | {figures['clips']} | "
-                         + " | ".join(_with_spread(figures, name) for name in
-                                      REFINEMENT_FIGURES) + " |")
-    lines += ["", "### Per clip", "",
-              "| clip | case | joint PA | vertex PA | joint cam | vertex cam | joint PA end / lowest | fit s |",
-              "|---|---|---|---|---|---|---|---|"]
+                         + " | ".join(_with_spread(figures, name) for name in REFINEMENT_FIGURES) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def refinement_per_clip_table(section):
+    """The markdown table of each clip's cases (over the seeds, with their spread)."""
+    lines = ["| clip | case | joint PA | vertex PA | joint cam | vertex cam | joint PA end / lowest | fit s |",
+             "|---|---|---|---|---|---|---|---|"]
     for row in section.get("per_clip") or section["rows"]:
         note = f" ({row['note']})" if row.get("note") else ""
         lines.append(f"| {row['clip']} | {row['case']}{note} | "
                      + " | ".join(_with_spread(row, name) for name in REFINEMENT_FIGURES)
                      + f" | {_number(row['fit_seconds'], 0)} |")
-    return lines + [""]
+    return "\n".join(lines) + "\n"
+
+
+def refinement_summary_table(section):
+    """The README's table: the Procrustes-aligned joint error of each case per motion."""
+    means = section["means"]
+    motions = list(means)
+    lines = ["| case | " + " | ".join(motions) + " |", "|---|" + "---|" * len(motions)]
+    for case in section["cases"]:
+        if any(case in means[motion] for motion in motions):
+            lines.append(f"| {case} | " + " | ".join(_with_spread(means[motion][case], "joint_mm")
+                                                     if case in means[motion] else "" for motion in motions) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def _with_spread(figures, name):
@@ -101,18 +120,22 @@ def _with_spread(figures, name):
 
 def _runtime_table(section):
     targets = section["targets"]
-    lines = ["## 2. Error against run time", "",
-             f"Clip `{section['clip']}`{_frames(section.get('frames'))}. Targets: within {section['within']:.0%} of "
-             f"the `{section['reference']}` preset's final figures: L1 {_number(targets.get('l1_mean'), 4)}, joint error "
-             f"{_number(targets.get('joint_mm'))} mm. Seconds of fitting (measuring excluded) from which the figure stays "
-             "within its target to the end.", "",
-             "| preset | fit s | final L1 | final joint PA mm | s to L1 target | s to joint target | s to both |",
+    return ["## 2. Error against run time", "",
+            f"Clip `{section['clip']}`{_frames(section.get('frames'))}. Targets: within {section['within']:.0%} of "
+            f"the `{section['reference']}` preset's final figures: L1 {_number(targets.get('l1_mean'), 4)}, joint error "
+            f"{_number(targets.get('joint_mm'))} mm. Seconds of fitting (measuring excluded) from which the figure stays "
+            "within its target to the end.", "", runtime_table(section)]
+
+
+def runtime_table(section):
+    """The markdown table of the run-time section: each preset's time, final figures and times to the targets."""
+    lines = ["| preset | fit s | final L1 | final joint PA mm | s to L1 target | s to joint target | s to both |",
              "|---|---|---|---|---|---|---|"]
     for row in section["table"]:
         lines.append(f"| {row['preset']} | {_number(row['fit_seconds'], 0)} | {_number(row['final_l1'], 4)} | "
                      f"{_number(row['final_joint_mm'])} | {_reached(row['seconds_to_l1'])} | "
                      f"{_reached(row['seconds_to_joint'])} | {_reached(row['seconds_to_both'])} |")
-    return lines + [""]
+    return "\n".join(lines) + "\n"
 
 
 def _frames(count):
