@@ -304,7 +304,7 @@ def runtime_plan(clip, out, presets, log, fit_options, progress="none"):
     cells = [Cell(f"runtime_{clip.name}_{preset}", fit_runtime_preset,
                   dict(sequence=noisy, folder=folder, preset=preset, fit_options=fit_options, progress=progress))
              for preset, folder in folders.items()]
-    return cells, lambda: runtime_table(clip, folders, fit_options)
+    return cells, lambda: runtime_section(clip, folders, fit_options)
 
 
 def fit_runtime_preset(sequence, folder, preset, fit_options, log, progress="none"):
@@ -313,7 +313,7 @@ def fit_runtime_preset(sequence, folder, preset, fit_options, log, progress="non
     return str(folder)
 
 
-def runtime_table(clip, folders, fit_options):
+def runtime_section(clip, folders, fit_options):
     curves = {preset: read_curve(folder)["points"] for preset, folder in folders.items()}
     presets = list(folders)
     reference = "full" if "full" in curves else presets[-1]
