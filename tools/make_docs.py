@@ -215,7 +215,7 @@ def _blender_rigify(work, log, threads, demo):
 
 
 STUDY_SET = ["--identities", "small-verylight,medium-light", "--motions", "flip,fingers", "--views", "front"]
-STUDY_SEEDS = "0"             # 3 seeds: 5 hours of this machine's 2 cores (docs/study.md); the option is there
+STUDY_SEEDS = "0"             # 3 seeds: about 3 hours of this machine's 2 cores (docs/study.md)
 STUDY_RUNTIME_PRESETS = "preview,fast,full"     # `paper` (HARP's schedule, 25 min more) is measured in performance.md
 
 
