@@ -215,7 +215,17 @@ class _PoolBackend:
 def _worker_start(threads):
     from .threads import configure_threads
 
+    _drop_blender_script_paths()
     configure_threads(threads)
+
+
+def _drop_blender_script_paths():
+    """A spawned worker starts with its parent's sys.path. Where the parent imported Blender's
+    module, that holds Blender's script folders first, and one of them has a `bpy` package of its
+    own that would then be imported instead of the module (and fail: no `_bpy`)."""
+    import sys
+
+    sys.path[:] = [entry for entry in sys.path if not {"bpy", "scripts"} <= set(Path(entry).parts)]
 
 
 def _call_logged(function, kwargs, log_file):
