@@ -2,6 +2,7 @@
 that fails beside those that finish, the same figures in worker processes as one by one, and a
 batch that goes on with --resume."""
 import csv
+import importlib.util
 import json
 
 import numpy as np
@@ -94,3 +95,13 @@ def test_harp_batch_without_ray_installed_says_how_to_install_it(clips, tmp_path
                  "--progress", "none", "--init", "gt-noise"])
     assert code == 1
     assert "pip install .[cluster]" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="Ray (the cluster extra) is not installed")
+def test_a_batch_on_a_local_ray_gives_the_figures_of_the_clips_fitted_one_by_one(clips, tmp_path):
+    inputs = [(str(clips / name), None) for name in ("turning", "closing")]
+    on_ray = run_batch(inputs, tmp_path / "ray", executor="ray", **TINY)
+    one_by_one = [run_batch([item], tmp_path / f"alone_{number}", jobs=1, **TINY)[0]
+                  for number, item in enumerate(inputs)]
+    assert [figures(row) for row in on_ray] == [figures(row) for row in one_by_one]     # bit for bit
+    assert all(row["status"] == "done" and row["attempts"] == 1 for row in on_ray)
