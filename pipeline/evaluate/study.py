@@ -329,7 +329,8 @@ def runtime_section(clip, folders, fit_options):
         last = points[-1]
         table.append({"preset": preset, "fit_seconds": last["fit_seconds"], "final_l1": last.get("l1_mean"),
                       "final_joint_mm": last.get("joint_mm"), "seconds_to_l1": reached.get("l1_mean"),
-                      "seconds_to_joint": reached.get("joint_mm"), "seconds_to_both": both})
+                      "seconds_to_joint": reached.get("joint_mm"), "seconds_to_both": both,
+                      **_curve_end(folders[preset])})
     return {"clip": clip.name, "frames": fit_options.get("max_frames"), "seed": fit_options.get("seed"),
             "reference": reference, "within": WITHIN, "targets": targets, "table": table,
             "fits": {preset: str(folder) for preset, folder in folders.items()}}
