@@ -265,7 +265,8 @@ def write_table(out, rows):
         writer.writerow([key for key, _, _ in COLUMNS])
         for row in rows:
             writer.writerow(["" if row.get(key) is None else row[key] for key, _, _ in COLUMNS])
-    shown = [(key, heading, digits) for key, heading, digits in COLUMNS if any(row.get(key) is not None for row in rows)]
+    shown = [(key, heading, digits) for key, heading, digits in COLUMNS
+             if any(row.get(key) is not None for row in rows)]
     lines = ["| " + " | ".join(heading for _, heading, _ in shown) + " |", "|" + "---|" * len(shown)]
     for row in rows:
         lines.append("| " + " | ".join(_cell(row.get(key), digits) for key, _, digits in shown) + " |")
