@@ -167,8 +167,26 @@ def _study(args):
                       runtime_presets=tuple(args.runtime_presets.split(",")), runtime_frames=args.runtime_frames,
                       stability_scale=args.stability_scale,
                       stability_kinds=tuple(args.stability_kinds.split(",")) if args.stability_kinds else None,
-                      seeds=args.seeds, jobs=args.jobs, threads=threads_per_job)
+                      seeds=args.seeds, jobs=args.jobs, threads=threads_per_job, executor=args.executor,
+                      address=args.address)
     print(f"wrote {Path(args.out) / 'study.md'} ({study['seconds'] / 60:.0f} min)")
+
+
+def _batch(args):
+    if args.threads < 1 or (args.jobs is not None and args.jobs < 1):
+        raise ValueError("--threads and --jobs must be at least 1")
+    configure_threads(args.threads)
+    from .batch import read_list, run_batch
+
+    inputs = [(path, None) for path in args.inputs] + (read_list(args.list_file) if args.list_file else [])
+    if not inputs:
+        raise ValueError("give the clips: videos or sequence folders, or --list FILE")
+    table = run_batch(inputs, args.out, resume=args.resume, executor=args.executor, jobs=args.jobs,
+                      threads=args.threads, address=args.address, preset=args.preset,
+                      hold_out_every=args.hold_out_every, init=args.init, seed=args.seed,
+                      held_out_steps=args.held_out_steps, progress=args.progress)
+    if any(row["status"] == "failed" for row in table):
+        return 1
 
 
 def _evaluate(args):
@@ -423,7 +441,36 @@ def build_parser():
                             "each share a 2-core machine at about the time of one)")
     study.add_argument("--progress", choices=("bar", "jsonl", "none"), default="none",
                        help="progress of each fit (default: none; the study logs each run)")
+    study.add_argument("--executor", choices=("local", "ray"), default="local",
+                       help="where the fits run: local (--jobs processes on this machine) or ray (a task per fit on "
+                            "the Ray cluster at --address, or a local one; pip install .[cluster])")
+    study.add_argument("--address", default=None, help="the Ray cluster's address (ray: default a local one)")
     study.set_defaults(run=_study)
+
+    batch = commands.add_parser("batch", help="many clips (videos or sequence folders) through import, init, fit and "
+                                              "evaluation, one table of their figures")
+    batch.add_argument("inputs", nargs="*", help="videos (masks made from the footage) or sequence folders")
+    batch.add_argument("--list", dest="list_file", default=None, metavar="FILE",
+                       help="a file of inputs, one `INPUT [MASKS]` per line (# comments)")
+    batch.add_argument("--out", required=True, help="batch folder: a folder per clip, batch.csv and batch.md")
+    batch.add_argument("--resume", action="store_true", help="go on with the batch in --out where it stopped")
+    batch.add_argument("--executor", choices=("local", "ray"), default="local",
+                       help="local (default: clips at once on this machine) or ray (a task per clip; pip install "
+                            ".[cluster])")
+    batch.add_argument("--address", default=None, help="the Ray cluster's address (default: a local one)")
+    batch.add_argument("--jobs", type=int, default=None, metavar="N",
+                       help="local: clips at once (default: one per core, each single-threaded)")
+    batch.add_argument("--threads", type=int, default=1, metavar="N", help="CPU threads of each clip (default 1)")
+    batch.add_argument("--preset", choices=tuple(PRESET_NOTES), default="fast", help="the fits' preset (default: fast)")
+    batch.add_argument("--hold-out-every", type=int, default=10, metavar="N",
+                       help="leave every N-th frame out of each fit and score it (default 10)")
+    batch.add_argument("--init", choices=("mediapipe", "gt-noise"), default="mediapipe",
+                       help="the initial estimate (gt-noise: synthetic clips only)")
+    batch.add_argument("--seed", type=int, default=None, help="the fits' random seed (default 0)")
+    batch.add_argument("--held-out-steps", type=int, default=300, metavar="N",
+                       help="the held-out frames' pose and light steps at most (default 300)")
+    batch.add_argument("--progress", choices=("bar", "none"), default="bar", help="a bar over the clips, or log lines")
+    batch.set_defaults(run=_batch)
 
     evaluate = commands.add_parser("evaluate", help="score a fit: held-out frames; albedo and poses against the truth")
     evaluate.add_argument("fit", help="avatar folder written by harp fit")
@@ -550,14 +597,14 @@ def main(argv=None):
     args = build_parser().parse_args(argv)
     _take_interrupts()
     try:
-        args.run(args)
+        code = args.run(args)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
     except (OSError, ValueError) as error:
         print(f"harp: error: {error}", file=sys.stderr)
         return 1
-    return 0
+    return code or 0
 
 
 def _take_interrupts():

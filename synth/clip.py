@@ -167,6 +167,9 @@ def new_scene(settings, K):
     scene.render.pixel_aspect_x = scene.render.pixel_aspect_y = 1.0
     with silenced(not settings.verbose):  # Cycles probes for GPUs and says so
         configure_cycles(scene, settings.samples, settings.denoise)
+    if settings.threads:                  # several renders sharing the machine (synth/dataset.py --jobs)
+        scene.render.threads_mode = "FIXED"
+        scene.render.threads = settings.threads
     camera_data = bpy.data.cameras.new("camera")
     for key, value in camera_convention.blender_camera_settings(K, settings.width, settings.height).items():
         setattr(camera_data, key, value)
@@ -176,6 +179,14 @@ def new_scene(settings, K):
     scene.collection.objects.link(camera)
     scene.camera = camera
     return scene
+
+
+def render_clip_from_args(args, log):
+    """One clip of render.py's arguments `args` (an executor's cell: synth/dataset.py --jobs)."""
+    from synth.options import parse_clip_args
+
+    summary = render_clip(parse_clip_args(list(args)), log=log)
+    return {"frames": summary["frames"], "seconds": summary["seconds"]}
 
 
 def log_to_stderr(message):

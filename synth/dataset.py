@@ -67,6 +67,12 @@ def build_parser():
     add("--overwrite", action="store_true", help="render finished clips again")
     add("--preview", action="store_true", help="tiny clips (4 frames, 64x64) to check the set up")
     add("--clip-args", default="", help="extra render.py arguments for every clip, e.g. '--seconds 3 --samples 32'")
+    add("--jobs", type=int, default=1, help="clips rendered at once, each in a process of its own with its share of "
+                                            "the cores (default 1: one at a time on every core)")
+    add("--executor", choices=("local", "ray"), default="local",
+        help="local (--jobs processes here) or ray (a task per clip on the Ray cluster at --address; "
+             "pip install .[cluster]); the dataset folder must be one every node sees")
+    add("--address", default=None, help="the Ray cluster's address (default: a local one)")
     return parser
 
 
@@ -91,34 +97,81 @@ def main(argv=None):
     except SynthError as error:
         print(f"dataset.py: error: {error}", file=sys.stderr)
         return 2
+    if args.jobs < 1:
+        print(f"dataset.py: error: --jobs must be at least 1, got {args.jobs}", file=sys.stderr)
+        return 2
     if args.list:
         for (name, clip), s in zip(clips, settings):
             print(f"{name}: {s.frame_count} frames, {' '.join(clip)}")
         return 0
-    from synth.clip import render_clip
-
     index_path = os.path.join(args.out, "dataset.json")
     index = {"clips": {}}
     if os.path.isfile(index_path):
         with open(index_path) as handle:
             index = json.load(handle)
-    started = time.perf_counter()
-    for number, ((name, clip), s) in enumerate(zip(clips, settings)):
-        if os.path.isfile(os.path.join(s.out, "sequence.json")) and not args.overwrite:
-            print(f"[{number + 1}/{len(clips)}] {name}: done already", flush=True)
-            continue
-        try:
-            summary = render_clip(s, log=lambda message: None)
-        except SynthError as error:
-            print(f"dataset.py: error in {name}: {error}", file=sys.stderr)
-            return 2
+
+    def record(name, clip, summary):
         index["clips"][name] = {"args": clip + extra, "frames": summary["frames"],
                                 "seconds": round(summary["seconds"], 1)}
         os.makedirs(args.out, exist_ok=True)
         with open(index_path, "w") as handle:
             json.dump(index, handle, indent=1)
-        print(f"[{number + 1}/{len(clips)}] {name}: {summary['frames']} frames in {summary['seconds']:.0f} s", flush=True)
+
+    started = time.perf_counter()
+    todo = []
+    for number, ((name, clip), s) in enumerate(zip(clips, settings)):
+        if os.path.isfile(os.path.join(s.out, "sequence.json")) and not args.overwrite:
+            print(f"[{number + 1}/{len(clips)}] {name}: done already", flush=True)
+        else:
+            todo.append((number, name, clip, s))
+    if args.jobs > 1 or args.executor == "ray":
+        code = _render_spread(todo, extra, args, record)
+        if code:
+            return code
+    else:
+        from synth.clip import render_clip
+
+        for number, name, clip, s in todo:
+            try:
+                summary = render_clip(s, log=lambda message: None)
+            except SynthError as error:
+                print(f"dataset.py: error in {name}: {error}", file=sys.stderr)
+                return 2
+            record(name, clip, summary)
+            print(f"[{number + 1}/{len(clips)}] {name}: {summary['frames']} frames in {summary['seconds']:.0f} s",
+                  flush=True)
     print(f"rendered {len(clips)} clips into {args.out} in {time.perf_counter() - started:.0f} s")
+    return 0
+
+
+def _render_spread(todo, extra, args, record):
+    """The clips to render as cells of an executor (pipeline/executors.py), each with its share
+    of the cores unless --clip-args sets Cycles' --threads; 0, or 2 where a clip failed."""
+    from pipeline.executors import Cell, CellFailure, ExecutorError, run_cells
+    from pipeline.threads import available_cores
+    from synth.clip import render_clip_from_args
+
+    threads = [] if "--threads" in extra else ["--threads", str(max(1, available_cores() // max(1, args.jobs)))]
+    cells = [Cell(name, render_clip_from_args,
+                  {"args": ["--out", os.path.join(args.out, name), "--overwrite", *clip, *extra, *threads]})
+             for _, name, clip, _ in todo]
+    arguments = {name: clip for _, name, clip, _ in todo}
+
+    def finished(name, summary):
+        record(name, arguments[name], summary)
+        print(f"{name}: {summary['frames']} frames in {summary['seconds']:.0f} s", flush=True)
+
+    try:
+        run_cells(cells, jobs=args.jobs, threads=1, executor=args.executor, address=args.address, ship="never",
+                  log=lambda message: print(message, flush=True), logs=os.path.join(args.out, "logs"),
+                  on_result=finished)
+    except ExecutorError as error:
+        print(f"dataset.py: error: {error}", file=sys.stderr)
+        return 2
+    except CellFailure as failure:
+        for name, reason in failure.failures.items():
+            print(f"dataset.py: error in {name}: {reason}", file=sys.stderr)
+        return 2
     return 0
 
 

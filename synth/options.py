@@ -53,6 +53,7 @@ class ClipSettings:
     mask_engine: str = "workbench"
     save_vertices: bool = True
     verbose: bool = False
+    threads: int = 0                # Cycles' CPU threads; 0: every core
 
     @property
     def frame_count(self) -> int:
@@ -106,6 +107,7 @@ def build_parser(prog="render.py"):
     add("--no-vertices", dest="save_vertices", action="store_false", help="do not store posed vertices in gt.npz")
     add("--preview", action="store_true", help="4 frames, 64x64, 4 samples: a quick check")
     add("--verbose", action="store_true", help="show Blender's render output")
+    add("--threads", type=int, default=0, help="CPU threads Cycles renders with (default 0: every core)")
     return parser
 
 
@@ -181,6 +183,8 @@ def check_settings(s: ClipSettings) -> None:
             fail(f"unknown feature {unknown[0]!r}; choose from {', '.join(FEATURES)} or 'none'")
     if not 1 <= s.samples <= 65536:
         fail(f"--samples must be within 1..65536, got {s.samples}")
+    if not 0 <= s.threads <= 1024:
+        fail(f"--threads must be within 0..1024 (0: every core), got {s.threads}")
     if s.texture_size not in (64, 128, 256, 512, 1024, 2048, 4096):
         fail(f"--texture-size must be a power of two from 64 to 4096, got {s.texture_size}")
     if s.out.exists() and not s.out.is_dir():

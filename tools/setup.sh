@@ -2,7 +2,8 @@
 # Create ./.venv and install the project into it (CPU build of torch).
 #   bash tools/setup.sh          the `harp` command and its dependencies (bpy, Blender as a
 #                                module, ~800 MB, renders the demo's synthetic clip)
-#   bash tools/setup.sh --test   also pytest
+#   bash tools/setup.sh --test   also pytest (and Ray, whose executor the tests run)
+#   bash tools/setup.sh --cluster  also Ray, for `harp batch` / `harp study --executor ray`
 set -euo pipefail
 cd "$(dirname "$0")/.."
 python=${PYTHON:-python3.11}
@@ -13,9 +14,17 @@ fi
 .venv/bin/python -m pip install --quiet --upgrade pip
 # torch first and exactly pinned: this takes the CPU build instead of a multi-GB CUDA one
 .venv/bin/python -m pip install --quiet torch==2.13.0
+wanted=()
+for flag in "$@"; do
+    case "$flag" in
+        --test) wanted+=(test) ;;
+        --cluster) wanted+=(cluster) ;;
+        *) echo "setup.sh: unknown option $flag (use --test, --cluster)" >&2; exit 2 ;;
+    esac
+done
 extras=""
-if [ "${1:-}" = "--test" ]; then
-    extras="[test]"
+if [ ${#wanted[@]} -gt 0 ]; then
+    extras="[$(IFS=,; echo "${wanted[*]}")]"
 fi
 .venv/bin/python -m pip install --quiet -e ".${extras}"
 # one working OpenCV: mediapipe pulls in the non-headless opencv-contrib-python (and other

@@ -19,7 +19,7 @@ run time of the presets, over a folder of synthetic clips as synth/dataset.py wr
 3. The stability sweep (stability.py).
 
 Every fit goes through pipeline.fit.fit (what `harp fit` runs) with the curve recorder of
-`harp fit --curve`; `--jobs N` runs N fits at once, each in a process of its own (study_pool.py).
+`harp fit --curve`; `--jobs N` runs N fits at once, each in a process of its own (executors.py).
 Finished work is kept and skipped on a rerun; a stopped fit is resumed. Outputs in DIR: study.md
 (tables in that order), study.json, plots/, and the runs (sequences/, fits/CLIP/seedS/,
 results/seedS/, runtime/, stability/ or stability_fast/, logs/ of the worker processes).
@@ -40,7 +40,7 @@ from ..formats.fit_curve import read_curve
 from ..formats.initial_estimate import read_initial_estimate
 from .poses import PoseScorer, evaluate_poses
 from .stability import run_stability_sweep
-from .study_pool import Cell, CellFailure, run_cells
+from ..executors import Cell, CellFailure, run_cells
 from .study_report import write_outputs
 from .study_runs import finished_or_fitted, initialised, read_json, sequence_frame_count, write_json
 
@@ -85,7 +85,7 @@ def dataset_clips(dataset, pattern=None):
 
 def run_study(dataset, out, clips=None, quick=False, preset="fast", sections=SECTIONS, progress="none", log=print,
               runtime_presets=RUNTIME_PRESETS, runtime_frames=RUNTIME_FRAMES, stability_scale=None, stability_kinds=None,
-              seeds=(0,), jobs=1, threads=None, **fit_options):
+              seeds=(0,), jobs=1, threads=None, executor="local", address=None, **fit_options):
     """Run the study's sections into `out`; returns the study dict (also study.json/study.md).
     `fit_options` go to every fit (e.g. max_steps, resolution for small tests); --quick caps
     every stage at QUICK_STEPS steps and runs a small stability sweep (one case per kind, at
@@ -93,7 +93,8 @@ def run_study(dataset, out, clips=None, quick=False, preset="fast", sections=SEC
     "fast", with --quick "tiny"); `stability_kinds` keeps the sweep's cases of those kinds.
     The refinement fits run once per fit seed in `seeds` (every seed from the same initial
     estimate); the run-time section's with the first. `jobs` fits run at once, each in a process
-    of its own with `threads` torch threads (study_pool.py)."""
+    of its own with `threads` torch threads, or with `executor` "ray" each a task on the Ray
+    cluster at `address` (executors.py)."""
     out = Path(out)
     unknown = [s for s in sections if s not in SECTIONS]
     if unknown:
@@ -108,7 +109,7 @@ def run_study(dataset, out, clips=None, quick=False, preset="fast", sections=SEC
              "seeds": list(seeds), "jobs": jobs, "sections": {}}
     started = time.time()
     cells, assemble = [], []
-    cell_progress = progress if jobs <= 1 else "none"       # worker processes draw no progress bars
+    cell_progress = progress if jobs <= 1 and executor == "local" else "none"   # workers draw no progress bars
     if "refinement" in sections:
         refinement_cells, gather = refinement_plan(selected, out, preset, seeds, log, fit_options, cell_progress)
         cells += refinement_cells
@@ -122,7 +123,8 @@ def run_study(dataset, out, clips=None, quick=False, preset="fast", sections=SEC
         assemble.append(("runtime", gather))
     if cells:
         try:
-            run_cells(cells, jobs=jobs, threads=threads, log=log, logs=out / "logs")
+            run_cells(cells, jobs=jobs, threads=threads, log=log, logs=out / "logs", executor=executor,
+                      address=address, ship="never")       # the cells share the study's sequences: one filesystem
         except CellFailure as failure:
             raise StudyError(f"{len(failure.failures)} of the study's fits failed (the rest is kept; rerun to "
                              f"resume): {failure}") from failure
@@ -327,7 +329,8 @@ def runtime_section(clip, folders, fit_options):
         last = points[-1]
         table.append({"preset": preset, "fit_seconds": last["fit_seconds"], "final_l1": last.get("l1_mean"),
                       "final_joint_mm": last.get("joint_mm"), "seconds_to_l1": reached.get("l1_mean"),
-                      "seconds_to_joint": reached.get("joint_mm"), "seconds_to_both": both})
+                      "seconds_to_joint": reached.get("joint_mm"), "seconds_to_both": both,
+                      **_curve_end(folders[preset])})
     return {"clip": clip.name, "frames": fit_options.get("max_frames"), "seed": fit_options.get("seed"),
             "reference": reference, "within": WITHIN, "targets": targets, "table": table,
             "fits": {preset: str(folder) for preset, folder in folders.items()}}

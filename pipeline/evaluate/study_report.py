@@ -129,12 +129,13 @@ def _runtime_table(section):
 
 def runtime_table(section):
     """The markdown table of the run-time section: each preset's time, final figures and times to the targets."""
-    lines = ["| preset | fit s | final L1 | final joint PA mm | s to L1 target | s to joint target | s to both |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| preset | fit s | final L1 | final joint PA mm | joint PA end / lowest | s to L1 target | "
+             "s to joint target | s to both |", "|---|---|---|---|---|---|---|---|"]
     for row in section["table"]:
         lines.append(f"| {row['preset']} | {_number(row['fit_seconds'], 0)} | {_number(row['final_l1'], 4)} | "
-                     f"{_number(row['final_joint_mm'])} | {_reached(row['seconds_to_l1'])} | "
-                     f"{_reached(row['seconds_to_joint'])} | {_reached(row['seconds_to_both'])} |")
+                     f"{_number(row['final_joint_mm'])} | {_number(row.get('joint_end_over_min'))} | "
+                     f"{_reached(row['seconds_to_l1'])} | {_reached(row['seconds_to_joint'])} | "
+                     f"{_reached(row['seconds_to_both'])} |")
     return "\n".join(lines) + "\n"
 
 
