@@ -204,7 +204,9 @@ def _fit(sequence, avatar, options, log):
     from .fit import CHECKPOINT_FILE, fit
 
     seed = {} if options["seed"] is None else {"seed": options["seed"]}
-    fit(sequence, avatar, preset=options["preset"], resume=(avatar / CHECKPOINT_FILE).is_file(), progress="none",
+    resume = (avatar / CHECKPOINT_FILE).is_file()
+    log(f"{'resuming the fit from its checkpoint' if resume else 'fitting'} in {avatar}")
+    fit(sequence, avatar, preset=options["preset"], resume=resume, progress="none",
         hold_out_every=options["hold_out_every"], **seed, **options["fit_options"])
 
 
