@@ -81,16 +81,7 @@ def test_bad_inputs_are_named_before_anything_runs(clips, tmp_path):
         read_list(listing)
 
 
-def test_harp_batch_without_ray_installed_says_how_to_install_it(clips, tmp_path, monkeypatch, capsys):
-    import builtins
-    real_import = builtins.__import__
-
-    def no_ray(name, *args, **kwargs):
-        if name == "ray" or name.startswith("ray."):
-            raise ImportError("No module named 'ray'")
-        return real_import(name, *args, **kwargs)
-
-    monkeypatch.setattr(builtins, "__import__", no_ray)
+def test_harp_batch_without_ray_installed_says_how_to_install_it(clips, tmp_path, without_ray, capsys):
     code = main(["batch", str(clips / "turning"), "--out", str(tmp_path / "r"), "--executor", "ray",
                  "--progress", "none", "--init", "gt-noise"])
     assert code == 1

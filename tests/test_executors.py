@@ -123,15 +123,6 @@ def test_a_plan_that_names_an_unknown_or_repeated_cell_or_executor_is_refused():
         run_cells([Cell("a", square, {"value": 1})], executor="dask")
 
 
-def test_without_ray_the_ray_executor_says_how_to_install_it(monkeypatch):
-    import builtins
-    real_import = builtins.__import__
-
-    def no_ray(name, *args, **kwargs):
-        if name == "ray" or name.startswith("ray."):
-            raise ImportError("No module named 'ray'")
-        return real_import(name, *args, **kwargs)
-
-    monkeypatch.setattr(builtins, "__import__", no_ray)
+def test_without_ray_the_ray_executor_says_how_to_install_it(without_ray):
     with pytest.raises(ExecutorError, match=r"pip install \.\[cluster\]"):
         run_cells([Cell("a", square, {"value": 1})], executor="ray")
