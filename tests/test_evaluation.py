@@ -85,7 +85,8 @@ def test_held_out_evaluation_fits_pose_and_light_only(held_out_fit, tiny_clip, m
     save_checkpoint(shadowed / CHECKPOINT_FILE, saved)
     seen = []
     original = stage_run.batch_energy
-    monkeypatch.setattr(stage_run, "batch_energy", lambda *args: seen.append(args[3]) or original(*args))
+    monkeypatch.setattr(stage_run, "batch_energy",
+                        lambda *args, **kwargs: seen.append(args[3]) or original(*args, **kwargs))
     assert held_out.evaluate_held_out(shadowed, tiny_clip, steps=1, device="cpu").shadows is True
     assert seen and all(seen)
 

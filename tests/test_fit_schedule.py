@@ -69,6 +69,38 @@ def test_a_terms_weight_can_differ_by_stage():
     assert "silhouette" in [term.name for term in terms_for(StageKind.GEOMETRY, settings)]
 
 
+def test_a_terms_weight_can_fade_along_a_stage():
+    """settings.stage_fades: the weight at a stage's start as stage_factors make it, at its end
+    the fraction given, half way between them half way through (a half cosine); other stages and
+    terms keep theirs."""
+    settings = settings_for("fast", 30, stage_fades={"keypoint_anchor": {"align": 0.1}})
+    anchor = ENERGY_TERMS["keypoint_anchor"]
+    assert anchor.weight_in(settings, StageKind.ALIGN, 0.0) == pytest.approx(10.0)
+    assert anchor.weight_in(settings, StageKind.ALIGN, 0.5) == pytest.approx(5.5)
+    assert anchor.weight_in(settings, StageKind.ALIGN, 0.25) == pytest.approx(1.0 + 9.0 * (0.5 + 0.5 ** 1.5))
+    assert anchor.weight_in(settings, StageKind.ALIGN, 1.0) == pytest.approx(1.0)
+    assert anchor.weight_in(settings, StageKind.ALIGN) == pytest.approx(10.0)       # no progress: the start
+    assert anchor.weight_in(settings, StageKind.GEOMETRY, 1.0) == pytest.approx(1.0)
+    assert ENERGY_TERMS["silhouette"].weight_in(settings, StageKind.ALIGN, 1.0) == pytest.approx(7.0)
+    with pytest.raises(ValueError, match="stage_fades: no energy term named 'anchor'"):
+        settings_for("fast", 30, stage_fades={"anchor": {"align": 0.1}})
+
+
+def test_a_fading_weight_weighs_the_term_by_the_stages_progress(tiny_clip):
+    """batch_energy's total counts a fading term at its weight at the progress given: the
+    difference between two progresses is the term's value times the weights' difference."""
+    settings = settings_for("fast", 4, resolution=96, texture_size=64,
+                            stage_fades={"keypoint_anchor": {"align": 0.2}})
+    problem = build_problem(tiny_clip, settings, np.arange(4), "cpu")
+    with torch.no_grad():
+        problem.avatar.pose.add_(0.05)         # away from the anchor's keypoints: a term worth weighing
+    frames, stage = torch.arange(4), StageSpec(StageKind.ALIGN, 10)
+    start, terms = batch_energy(problem, stage, frames, False, torch.Generator(), progress=0.0)
+    end, _ = batch_energy(problem, stage, frames, False, torch.Generator(), progress=1.0)
+    assert terms["keypoint_anchor"] > 0
+    assert float((start - end).detach()) == pytest.approx(terms["keypoint_anchor"] * (10.0 - 2.0), rel=1e-4)
+
+
 def test_a_misspelt_term_or_stage_in_stage_factors_is_an_error():
     """A stage factor that names no term or no stage would change nothing: it is refused."""
     with pytest.raises(ValueError, match="no stage named 'joint'.*geometry\\+appearance"):

@@ -51,10 +51,10 @@ class BatchWorkers:
         for connection in self.connections:
             self._receive(connection)       # "ready": the worker has built its problem
 
-    def send(self, connection, stage: StageSpec, frames, chunk_size, batch_size, shadows, seed):
+    def send(self, connection, stage: StageSpec, frames, chunk_size, batch_size, shadows, seed, progress=0.0):
         """Ask a worker for the energy of `frames` (a part of a batch of `batch_size` frames), in
-        chunks of `chunk_size`, each weighted by its share of the batch."""
-        connection.send(("energy", stage, frames.cpu().numpy(), chunk_size, batch_size, shadows, seed))
+        chunks of `chunk_size`, each weighted by its share of the batch, `progress` into the stage."""
+        connection.send(("energy", stage, frames.cpu().numpy(), chunk_size, batch_size, shadows, seed, progress))
 
     def collect(self, connection) -> tuple:
         """(loss, terms) of a part sent to `connection`, weighted by its share of the batch; its
@@ -117,12 +117,12 @@ def _serve(connection, recipe, parameters):
             message = connection.recv()
             if message[0] == "stop":
                 return
-            _, stage, frames, chunk_size, batch_size, shadows, seed = message
+            _, stage, frames, chunk_size, batch_size, shadows, seed, progress = message
             for parameter in own.values():
                 parameter.grad = None
             generator = torch.Generator().manual_seed(seed)
             loss, terms = chunked_energy(problem, stage, torch.as_tensor(frames, device=problem.device), chunk_size,
-                                         batch_size, shadows, generator)
+                                         batch_size, shadows, generator, progress=progress)
             gradients = {name: parameter.grad.cpu().numpy() for name, parameter in own.items()
                          if parameter.grad is not None}
             connection.send(("energy", loss, terms, gradients))

@@ -59,15 +59,16 @@ class BatchData:
         return self.problem.avatar.displacement_field()
 
 
-def batch_energy(problem: FitProblem, stage: StageSpec, frames, shadows, generator):
+def batch_energy(problem: FitProblem, stage: StageSpec, frames, shadows, generator, progress=0.0):
     """(total loss, {term: value}) for `frames` (indices into the problem's frames) in `stage`,
-    self-shadowing on or off; `generator` draws the texture regularisers' offsets. Terms with
-    weight 0 are not computed; the shaded render is made only when a term needs it."""
+    `progress` into it (steps taken / planned: a term's weight may fade along it), self-shadowing on
+    or off; `generator` draws the texture regularisers' offsets. Terms with weight 0 are not
+    computed; the shaded render is made only when a term needs it."""
     settings = problem.settings
     terms = terms_for(stage.kind, settings, problem)
     shaded = stage.appearance and any(SHADED in term.needs for term in terms)
     batch = BatchData(problem, stage, frames, shadows, generator, shaded)
     values = {term.name: term.evaluate(batch) for term in terms}
-    total = sum((term.weight_in(settings, stage.kind) * values[term.name] for term in terms),
+    total = sum((term.weight_in(settings, stage.kind, progress) * values[term.name] for term in terms),
                 batch.vertices.new_zeros(()))
     return total, {name: float(value.detach()) for name, value in values.items()}

@@ -19,7 +19,7 @@ from ..handmodel.rotations import axis_angle_to_matrix
 from ..render.rasterize import project
 from . import losses
 from .forearm_mask import MIDDLE_KNUCKLE, forearm_targets
-from .schedule import StageKind
+from .schedule import StageKind, half_cosine
 
 # what a term can need from a batch beyond the silhouette render (the energy makes only what is needed)
 SHADED = "shaded"              # the avatar rendered with its textures and light ("rgb")
@@ -36,6 +36,8 @@ class EnergyTerm:
     `evaluate(batch)` -> scalar tensor, `batch` an energy.BatchData (the posed avatar, the render,
     the frames and masks of the batch, the problem). `stages`: the stage kinds it counts in;
     `stage_factors`: its weight's factor in some of them (1 where not given; settings.stage_factors
+    replace them). `stage_fades`: in some of them its weight fades along the stage, a half cosine from
+    its weight there at the stage's start to this fraction of it at its end (settings.stage_fades
     replace them).
     `needs`: what it reads that costs a render pass (SHADED). `prepare(problem)`: fixed data made
     once when the problem is built (held in problem.term_data[name]; None: none). `applies(problem)`:
@@ -49,15 +51,20 @@ class EnergyTerm:
     prepare: Callable[[Any], Any] | None = None
     applies: Callable[[Any], bool] | None = None
     stage_factors: Mapping[StageKind, float] = dataclasses.field(default_factory=dict)
+    stage_fades: Mapping[StageKind, float] = dataclasses.field(default_factory=dict)
 
-    def weight_in(self, settings, stage: StageKind | None = None) -> float:
+    def weight_in(self, settings, stage: StageKind | None = None, progress: float | None = None) -> float:
         """Its weight under `settings` (settings.weights; a term missing from them: its default),
         in a stage of kind `stage` times its factor there (settings.stage_factors[name][stage
-        name], else its own stage_factors, else 1)."""
+        name], else its own stage_factors, else 1), and `progress` into that stage (steps taken /
+        planned; None: its start) times its fade there (stage_fades)."""
         weight = settings.weights.get(self.name, self.weight)
         if stage is None:
             return weight
         factor = settings.stage_factors.get(self.name, {}).get(stage.value, self.stage_factors.get(stage, 1.0))
+        if progress is not None:
+            fade = settings.stage_fades.get(self.name, {}).get(stage.value, self.stage_fades.get(stage, 1.0))
+            factor *= half_cosine(progress, fade)
         return weight * factor
 
 
@@ -89,11 +96,11 @@ def terms_for(stage: StageKind, settings, problem=None) -> list:
     return [term for term in ENERGY_TERMS.values() if stage in term.stages and is_on(term, settings, problem, stage)]
 
 
-def _term(name, weight, stages, needs=(), prepare=None, applies=None, stage_factors=None):
+def _term(name, weight, stages, needs=(), prepare=None, applies=None, stage_factors=None, stage_fades=None):
     """Decorator: registers the decorated function as the term's `evaluate`."""
     def add(evaluate):
         register(EnergyTerm(name, weight, frozenset(stages), evaluate, frozenset(needs), prepare, applies,
-                            dict(stage_factors or {})))
+                            dict(stage_factors or {}), dict(stage_fades or {})))
         return evaluate
     return add
 

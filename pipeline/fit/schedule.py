@@ -9,7 +9,15 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import math
 from typing import Iterator, Mapping, NamedTuple
+
+
+def half_cosine(progress: float, final: float) -> float:
+    """A factor along a stage at `progress` (steps taken / steps planned, 0..1): a half cosine from 1
+    down to `final` (the learning rates of a settling stage; a term's weight that fades)."""
+    progress = min(max(progress, 0.0), 1.0)
+    return final + (1.0 - final) * 0.5 * (1.0 + math.cos(math.pi * progress))
 
 
 class StageKind(enum.Enum):

@@ -191,6 +191,9 @@ class FitSettings:
     weights: dict = dataclasses.field(default_factory=default_weights)
     # {term: {stage name: factor}}: a term's weight in a stage, times this (energy_terms.EnergyTerm.stage_factors)
     stage_factors: dict = dataclasses.field(default_factory=dict)
+    # {term: {stage name: fraction}}: a term's weight fading along a stage to this fraction of its start, a half
+    # cosine (energy_terms.EnergyTerm.stage_fades)
+    stage_fades: dict = dataclasses.field(default_factory=dict)
     perceptual_weights: str | None = None   # local VGG16 file; default: weight-free pyramid
     checkpoint_seconds: float = 120.0
     budget_seconds: float | None = None   # the steps are cut to end within this (budget.py)
@@ -239,13 +242,14 @@ class FitSettings:
             raise ValueError(f"plateau_tolerance must be in [0, 1) (0: off), got {self.plateau_tolerance}")
         # a misspelt term or stage would otherwise leave the weight as it was, without a word
         stages = {kind.value for kind in StageKind}
-        for term, factors in self.stage_factors.items():
-            if term not in ENERGY_TERMS:
-                raise ValueError(f"stage_factors: no energy term named {term!r}; the terms: {', '.join(ENERGY_TERMS)}")
-            unknown = sorted(set(factors) - stages)
-            if unknown:
-                raise ValueError(f"stage_factors[{term!r}]: no stage named {unknown[0]!r}; "
-                                 f"the stages: {', '.join(sorted(stages))}")
+        for field, per_term in (("stage_factors", self.stage_factors), ("stage_fades", self.stage_fades)):
+            for term, factors in per_term.items():
+                if term not in ENERGY_TERMS:
+                    raise ValueError(f"{field}: no energy term named {term!r}; the terms: {', '.join(ENERGY_TERMS)}")
+                unknown = sorted(set(factors) - stages)
+                if unknown:
+                    raise ValueError(f"{field}[{term!r}]: no stage named {unknown[0]!r}; "
+                                     f"the stages: {', '.join(sorted(stages))}")
 
     @property
     def occlusion_in_stages(self) -> bool:
@@ -273,6 +277,7 @@ class FitSettings:
         values.setdefault("displacement_grid", "fine")   # saved before the coarse grid existed
         values.setdefault("validation_frames", 0)        # saved before validation inside the fit
         values.setdefault("stage_factors", {})
+        values.setdefault("stage_fades", {})             # saved before weights faded along a stage
         values.setdefault("environment", "off")          # saved before the environment light
         values.setdefault("specular", "off")             # saved before the specular lobe
         values.setdefault("albedo_openness", "off")      # saved before the solve weighed pixels by it

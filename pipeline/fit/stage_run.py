@@ -19,7 +19,7 @@ from .checkpoint import FitState
 from .energy import batch_energy
 from .energy_terms import measured_size, scene_depth
 from .problem import FitProblem
-from .schedule import StageKind, StageSpec
+from .schedule import StageKind, StageSpec, half_cosine
 
 ROLLBACK_EVERY = 20       # steps between the snapshots a rollback returns to
 ALIGN_CHUNK_FRAMES = 32   # frames of the unsubdivided mesh rendered at once in a full batch
@@ -39,8 +39,7 @@ PLATEAU_FLOOR = 0.125     # the plateaus halve a stage's rates down to this shar
 def learning_rate_factor(progress: float, final: float) -> float:
     """The factor on a stage's learning rates at `progress` (steps taken / steps planned, 0..1):
     a half cosine from 1 down to `final`."""
-    progress = min(max(progress, 0.0), 1.0)
-    return final + (1.0 - final) * 0.5 * (1.0 + math.cos(math.pi * progress))
+    return half_cosine(progress, final)
 
 
 def plateau_factor(losses, tolerance: float, window: int = PLATEAU_WINDOW, floor: float = PLATEAU_FLOOR) -> float:
@@ -85,14 +84,16 @@ def parameter_groups(problem: FitProblem, stage: StageSpec):
     return result
 
 
-def chunked_energy(problem, stage: StageSpec, frames, chunk_size, batch_size, shadows, generator, backward=True):
+def chunked_energy(problem, stage: StageSpec, frames, chunk_size, batch_size, shadows, generator, backward=True,
+                   progress=0.0):
     """(loss, terms) of `frames`, part of a batch of `batch_size` frames, rendered in chunks of
     `chunk_size` whose energies are weighted by their share of the batch; each chunk's gradient
-    is added to the parameters' (a non-finite chunk adds none)."""
+    is added to the parameters' (a non-finite chunk adds none). `progress`: how far the stage is
+    (steps taken / planned), for the terms whose weight fades along it."""
     loss, terms = 0.0, {}
     for chunk in frames.split(chunk_size):
         share = len(chunk) / batch_size
-        part, part_terms = batch_energy(problem, stage, chunk, shadows, generator)
+        part, part_terms = batch_energy(problem, stage, chunk, shadows, generator, progress=progress)
         if backward and torch.isfinite(part):
             (part * share).backward()
         loss = loss + float(part.detach()) * share
@@ -178,13 +179,14 @@ class StageRun:
         chunk_size = ALIGN_CHUNK_FRAMES if self.stage.coarse else self.problem.settings.batch_size
         workers = self.problem.workers if backward else None
         parts = [batch] if workers is None else split_batch(batch, 1 + workers.count)
+        progress = self.state.step / max(1, self.stage.steps)
         asked = []
         for connection, part in zip([] if workers is None else workers.connections, parts[1:]):
             seed = int(torch.randint(0, 2 ** 62, (1,), generator=self.generator))
-            workers.send(connection, self.stage, part, chunk_size, len(batch), self.shadows(), seed)
+            workers.send(connection, self.stage, part, chunk_size, len(batch), self.shadows(), seed, progress)
             asked.append(connection)
         loss, terms = chunked_energy(self.problem, self.stage, parts[0], chunk_size, len(batch), self.shadows(),
-                                     self.generator, backward)
+                                     self.generator, backward, progress)
         for connection in asked:
             part_loss, part_terms = workers.collect(connection)
             loss += part_loss
