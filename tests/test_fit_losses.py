@@ -186,6 +186,29 @@ def test_silhouette_and_displacement_terms():
     assert losses.displacement_loss(torch.tensor([0.001, -0.002])).item() == pytest.approx(5e-6)
 
 
+def test_pose_smoothness_by_acceleration_lets_a_steady_motion_be_and_holds_jitter_harder():
+    """The acceleration of a finger bending at a steady speed is 0 (its velocity is not); one
+    frame's jolt of 0.1 rad gives velocities (0.1, -0.1) and accelerations (-0.1, 0.2, -0.1) per
+    frame^2; independent jitter costs three times its velocity's cost (6 s^2 against 2 s^2)."""
+    times = torch.tensor([0, 1, 2, 4, 5])
+    pose = torch.zeros(5, 16, 3)
+    pose[:, 3, 0] = 0.1 * times
+    assert losses.temporal_pose_loss(pose, times, "acceleration").item() == pytest.approx(0, abs=1e-10)
+    times = torch.arange(5)
+    jolted = torch.zeros(5, 16, 3)
+    jolted[2, 3, 0] = 0.1
+    assert losses.temporal_pose_loss(jolted, times, "velocity").item() == pytest.approx(2 * 0.01 / 4, rel=1e-5)
+    assert losses.temporal_pose_loss(jolted, times, "acceleration").item() == pytest.approx(
+        (0.01 + 0.04 + 0.01) / 3, rel=1e-5)
+    jitter = torch.randn(4000, 16, 3, generator=torch.Generator().manual_seed(0)) * 0.01
+    times = torch.arange(4000)
+    ratio = losses.temporal_pose_loss(jitter, times, "acceleration") / losses.temporal_pose_loss(jitter, times)
+    assert ratio.item() == pytest.approx(3.0, rel=0.02)
+    assert losses.temporal_pose_loss(jitter[:2], times[:2], "acceleration") == 0     # too few frames to tell
+    with pytest.raises(ValueError, match="velocity, acceleration"):
+        losses.temporal_pose_loss(jitter, times, "jerk")
+
+
 def test_temporal_terms_vanish_on_steady_motion_and_count_time_gaps():
     times = torch.tensor([0, 1, 2, 4, 5])
     pose = torch.zeros(5, 16, 3)

@@ -150,7 +150,8 @@ def at_anchor_size(problem, keypoints):
 def _temporal_pose(batch):
     # over every frame (no rendering involved): the batch's frames feel their neighbours
     avatar = batch.problem.avatar
-    return losses.temporal_pose_loss(avatar.pose * avatar.pose_mask, avatar.frame_numbers)
+    return losses.temporal_pose_loss(avatar.pose * avatar.pose_mask, avatar.frame_numbers,
+                                     batch.problem.settings.pose_smoothness)
 
 
 def _reference_depth(problem):

@@ -130,10 +130,30 @@ def _per_frame_step(values, times):
     return (values[1:] - values[:-1]) / gaps.view(-1, *([1] * (values.dim() - 1)))
 
 
-def temporal_pose_loss(pose, times):
-    """Mean over consecutive frames of the squared change of the joint rotations (F, J, 3)
-    per frame of time (radians^2): fingers move little between video frames. `times` (F,)
-    are the frames' indices in the clip, so subsampled or held-out gaps count as longer."""
+def _per_frame_acceleration(values, times):
+    """Accelerations of per-frame values (F, ...) per frame^2 at the inner frames (F - 2, ...): the
+    change of velocity at frame i over half the span (t[i+1] - t[i-1])."""
+    velocity = _per_frame_step(values, times)
+    half_span = ((times[2:] - times[:-2]).to(values.dtype) / 2).clamp(min=1)
+    return (velocity[1:] - velocity[:-1]) / half_span.view(-1, *([1] * (values.dim() - 1)))
+
+
+POSE_SMOOTHNESS = ("velocity", "acceleration")     # FitSettings.pose_smoothness
+
+
+def temporal_pose_loss(pose, times, measure="velocity"):
+    """Mean over frames of the squared velocity ("velocity": the change between consecutive
+    frames) or acceleration of the joint rotations (F, J, 3) per frame of time (radians^2 per
+    frame^2 or frame^4): fingers move smoothly at video rates. `times` (F,) are the frames'
+    indices in the clip, so subsampled or held-out gaps count as longer. The velocity holds
+    every frame towards its neighbours' mean, a moving finger's extremes too; the acceleration
+    lets a finger move at a steady speed and still holds one frame's jitter (three times as hard
+    per unit weight: independent noise of variance s^2 gives steps of 2 s^2, accelerations of 6)."""
+    if measure not in POSE_SMOOTHNESS:
+        raise ValueError(f"pose smoothness must be one of {', '.join(POSE_SMOOTHNESS)}, got {measure!r}")
+    if measure == "acceleration":
+        return (_per_frame_acceleration(pose, times).square().sum((1, 2)).mean() if len(pose) >= 3
+                else pose.new_zeros(()))
     if len(pose) < 2:
         return pose.new_zeros(())
     return _per_frame_step(pose, times).square().sum((1, 2)).mean()
@@ -148,10 +168,7 @@ def exposure_loss(log_gains, times, measured, known, spread=0.02):
     if known.any():
         total = total + ((log_gains[known] - measured[known]) / spread).square().sum(1).mean()
     if len(log_gains) >= 3:
-        velocity = _per_frame_step(log_gains, times)
-        half_span = ((times[2:] - times[:-2]).to(log_gains.dtype) / 2).clamp(min=1)
-        acceleration = (velocity[1:] - velocity[:-1]) / half_span[:, None]
-        total = total + acceleration.square().sum(1).mean()
+        total = total + _per_frame_acceleration(log_gains, times).square().sum(1).mean()
     return total
 
 
@@ -190,11 +207,5 @@ def temporal_global_loss(rotations, translations, times, translation_unit=0.01, 
         return rotations.new_zeros(())
     if reference_depth is not None:
         translations = camera_relative_translations(translations, reference_depth)
-    half_span = ((times[2:] - times[:-2]).to(rotations.dtype) / 2).clamp(min=1)
-
-    def acceleration(values):
-        velocity = _per_frame_step(values, times)
-        return (velocity[1:] - velocity[:-1]) / half_span.view(-1, *([1] * (values.dim() - 1)))
-
-    return (acceleration(rotations).square().sum((1, 2)).mean()
-            + acceleration(translations / translation_unit).square().sum(1).mean())
+    return (_per_frame_acceleration(rotations, times).square().sum((1, 2)).mean()
+            + _per_frame_acceleration(translations / translation_unit, times).square().sum(1).mean())

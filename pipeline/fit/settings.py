@@ -7,7 +7,7 @@ import math
 
 from ..formats import colour_model
 from .energy_terms import ENERGY_TERMS, SIZE_MEASURES, default_weights
-from .losses import SIZE_TOLERANCE
+from .losses import POSE_SMOOTHNESS, SIZE_TOLERANCE
 from .schedule import Schedule, StageKind
 
 # the default energy weights, one per registered term (energy_terms.py: Table C.1 and ours)
@@ -182,6 +182,9 @@ class FitSettings:
     # alone, but the fitted frames 0.1-1.1 dB lower and the joints 0.03-0.13 mm worse on both paths; on the demo
     # level: off (docs/fidelity.md)
     translation_smoothness: str = "metres"
+    # what the temporal pose term measures of the joint rotations (losses.temporal_pose_loss): "velocity", their
+    # change between frames, or "acceleration", the change of that change
+    pose_smoothness: str = "velocity"
     # what the keypoint anchor holds of the initial estimate's keypoints: "held", their root-relative positions in
     # metres (their size too: MediaPipe's, good to 2-3%), or "free", the same with the fitted hand brought to
     # the initial estimate's size first (energy_terms._keypoint_anchor): the pose and the proportions held, the
@@ -215,6 +218,8 @@ class FitSettings:
             raise ValueError(f"size_anchor must be 'initial' or 'alignment', got {self.size_anchor!r}")
         if self.translation_smoothness not in ("metres", "camera"):
             raise ValueError(f"translation_smoothness must be 'metres' or 'camera', got {self.translation_smoothness!r}")
+        if self.pose_smoothness not in POSE_SMOOTHNESS:
+            raise ValueError(f"pose_smoothness must be one of {', '.join(POSE_SMOOTHNESS)}, got {self.pose_smoothness!r}")
         if self.anchor_size not in ("held", "free"):
             raise ValueError(f"anchor_size must be 'held' or 'free', got {self.anchor_size!r}")
         if self.size_measure not in SIZE_MEASURES:
@@ -294,6 +299,7 @@ class FitSettings:
         values.setdefault("align_downscale", 1)           # saved before the alignment rendered smaller
         values.setdefault("translation_smoothness", "metres")   # saved before the choice
         values.setdefault("anchor_size", "held")                # likewise
+        values.setdefault("pose_smoothness", "velocity")        # saved before the choice
         # saved before the size was held by default: the size prior as it was then (weight 0 unless asked for)
         values.setdefault("size_anchor", "initial")
         values.setdefault("size_tolerance", SIZE_TOLERANCE)
