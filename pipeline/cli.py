@@ -114,7 +114,7 @@ def _fit(args):
                  albedo_openness=args.albedo_openness, albedo_passes=args.albedo_passes, albedo_fill=args.albedo_fill,
                  light_search=args.light_search, solve_resolution=args.solve_resolution,
                  size_anchor=args.size_anchor, size_tolerance=args.size_tolerance, size_measure=args.size_measure,
-                 anchor_size=args.anchor_size,
+                 anchor_size=args.anchor_size, pose_smoothness=args.pose_smoothness,
                  **({} if args.seed is None else {"seed": args.seed}),
                  **({} if weights is None else {"weights": weights}),
                  **({} if stage_factors is None else {"stage_factors": stage_factors}))
@@ -369,6 +369,11 @@ def build_parser():
                      help="what the keypoint anchor holds of the initial keypoints: their positions in metres, "
                           "their size included (held, default), or the pose and proportions alone, the fitted hand "
                           "brought to their size first (free: the size left to the silhouettes; docs/fidelity.md)")
+    fit.add_argument("--pose-smoothness", choices=("acceleration", "velocity"), default=None,   # losses.POSE_SMOOTHNESS
+                     help="what the temporal pose term holds still: the joint rotations' acceleration "
+                          "(acceleration, default: a finger may move at a steady speed) or their velocity "
+                          "(velocity: every frame pulled towards its neighbours, a moving finger's swing cut "
+                          "short; docs/study.md)")
     fit.add_argument("--weight", action="append", default=None, metavar="NAME=VALUE",
                      help="an energy term's weight (repeatable), e.g. size_prior=1 (the terms and their defaults: "
                           "pipeline/fit/energy_terms.py; 0 switches a term off)")

@@ -125,6 +125,19 @@ def test_harp_fit_sets_the_size_priors_anchor_and_band(monkeypatch):
         settings_for("fast", 30, size_tolerance=-0.01)
 
 
+def test_harp_fit_sets_what_the_temporal_pose_term_measures(monkeypatch):
+    from pipeline.fit.losses import POSE_SMOOTHNESS
+
+    seen = _fit_options(monkeypatch, ["fit", "seq", "--out", "a", "--pose-smoothness", "velocity"],
+                        ["fit", "seq", "--out", "a"])
+    assert seen[0]["pose_smoothness"] == "velocity" and seen[1]["pose_smoothness"] is None
+    fit_parser = build_parser()._subparsers._group_actions[0].choices["fit"]
+    choices = next(action.choices for action in fit_parser._actions if action.dest == "pose_smoothness")
+    assert sorted(choices) == sorted(POSE_SMOOTHNESS)       # written out in the CLI (no torch import there)
+    with pytest.raises(ValueError, match="pose_smoothness must be"):
+        settings_for("fast", 30, pose_smoothness="jerk")
+
+
 def test_harp_fit_sets_a_terms_factor_in_a_stage(monkeypatch):
     seen = _fit_options(monkeypatch, ["fit", "seq", "--out", "a", "--stage-factor", "size_prior@align=0",
                                       "--stage-factor", "keypoint_anchor@geometry=0.5", "--stage-factor",

@@ -182,9 +182,14 @@ class FitSettings:
     # alone, but the fitted frames 0.1-1.1 dB lower and the joints 0.03-0.13 mm worse on both paths; on the demo
     # level: off (docs/fidelity.md)
     translation_smoothness: str = "metres"
-    # what the temporal pose term measures of the joint rotations (losses.temporal_pose_loss): "velocity", their
-    # change between frames, or "acceleration", the change of that change
-    pose_smoothness: str = "velocity"
+    # what the temporal pose term measures of the joint rotations (losses.temporal_pose_loss): "acceleration", the
+    # default, the change of their change between frames, or "velocity", their change (as fits did before). The
+    # velocity holds every frame towards its neighbours' mean, so a finger that bends and straightens is pulled
+    # short of its swing: on the study's `fingers` clips the joints reached their lowest 30-45 s into the alignment
+    # and climbed back, the anchor holding them (a weaker anchor made it worse). From gt-noise, fast, fit seeds
+    # 0-2 (docs/study.md, "The temporal pose term"): small-verylight_fingers joints 2.42-2.43 -> 1.50-1.51 mm, at
+    # the curve's lowest at the end (was 1.34x), vertex 3.12-3.19 -> 2.53-2.80 mm, L1 0.0241-0.0244 -> 0.0198-0.0199
+    pose_smoothness: str = "acceleration"
     # what the keypoint anchor holds of the initial estimate's keypoints: "held", their root-relative positions in
     # metres (their size too: MediaPipe's, good to 2-3%), or "free", the same with the fitted hand brought to
     # the initial estimate's size first (energy_terms._keypoint_anchor): the pose and the proportions held, the
