@@ -187,8 +187,8 @@ class FitSettings:
     # velocity holds every frame towards its neighbours' mean, so a finger that bends and straightens is pulled
     # short of its swing: on the study's `fingers` clips the joints reached their lowest 30-45 s into the alignment
     # and climbed back, the anchor holding them (a weaker anchor made it worse). From gt-noise, fast, fit seeds
-    # 0-2 (docs/study.md, "The temporal pose term"): small-verylight_fingers joints 2.42-2.43 -> 1.50-1.51 mm, at
-    # the curve's lowest at the end (was 1.34x), vertex 3.12-3.19 -> 2.53-2.80 mm, L1 0.0241-0.0244 -> 0.0198-0.0199
+    # 0-2 (docs/study.md, "The temporal pose term"), on both fingers clips: joints 2.42-2.71 -> 1.50-1.73 mm, at
+    # the curve's lowest at the end (was 1.31-1.34x), vertex 10-21% and L1 9-19% lower
     pose_smoothness: str = "acceleration"
     # what the keypoint anchor holds of the initial estimate's keypoints: "held", their root-relative positions in
     # metres (their size too: MediaPipe's, good to 2-3%), or "free", the same with the fitted hand brought to
