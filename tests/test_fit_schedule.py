@@ -84,6 +84,8 @@ def test_a_terms_weight_can_fade_along_a_stage():
     assert ENERGY_TERMS["silhouette"].weight_in(settings, StageKind.ALIGN, 1.0) == pytest.approx(7.0)
     with pytest.raises(ValueError, match="stage_fades: no energy term named 'anchor'"):
         settings_for("fast", 30, stage_fades={"anchor": {"align": 0.1}})
+    with pytest.raises(ValueError, match=r"stage_fades\['keypoint_anchor'\]\['align'\] must be 0 or more"):
+        settings_for("fast", 30, stage_fades={"keypoint_anchor": {"align": -0.5}})
 
 
 def test_a_fading_weight_weighs_the_term_by_the_stages_progress(tiny_clip):
