@@ -159,6 +159,11 @@ class StageRun:
     def finished(self) -> bool:
         return self.state.step >= self.stage.steps
 
+    @property
+    def progress(self) -> float:
+        """How far the stage is: steps taken / steps planned (its rates' decay, its terms' fades)."""
+        return self.state.step / max(1, self.stage.steps)
+
     def shadows(self) -> bool:
         return self.stage.appearance and self.state.shadows.on
 
@@ -179,7 +184,7 @@ class StageRun:
         chunk_size = ALIGN_CHUNK_FRAMES if self.stage.coarse else self.problem.settings.batch_size
         workers = self.problem.workers if backward else None
         parts = [batch] if workers is None else split_batch(batch, 1 + workers.count)
-        progress = self.state.step / max(1, self.stage.steps)
+        progress = self.progress
         asked = []
         for connection, part in zip([] if workers is None else workers.connections, parts[1:]):
             seed = int(torch.randint(0, 2 ** 62, (1,), generator=self.generator))
@@ -249,7 +254,7 @@ class StageRun:
         the stage's losses in the history, so a resumed stage continues alike)."""
         settings, factor = self.problem.settings, 1.0
         if self.stage.kind.settles:
-            factor = learning_rate_factor(self.state.step / max(1, self.stage.steps), settings.final_rate_fraction)
+            factor = learning_rate_factor(self.progress, settings.final_rate_fraction)
             if settings.plateau_tolerance > 0:
                 losses = [entry["loss"] for entry in self.state.history if entry["stage"] == self.stage.name]
                 factor *= plateau_factor(losses, settings.plateau_tolerance)
