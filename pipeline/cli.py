@@ -369,7 +369,7 @@ def build_parser():
                      help="what the keypoint anchor holds of the initial keypoints: their positions in metres, "
                           "their size included (held, default), or the pose and proportions alone, the fitted hand "
                           "brought to their size first (free: the size left to the silhouettes; docs/fidelity.md)")
-    fit.add_argument("--pose-smoothness", choices=("acceleration", "velocity"), default=None,   # losses.POSE_SMOOTHNESS
+    fit.add_argument("--pose-smoothness", choices=("acceleration", "adaptive", "velocity"), default=None,   # losses.POSE_SMOOTHNESS
                      help="what the temporal pose term holds still: the joint rotations' velocity (velocity, "
                           "default: every frame pulled towards its neighbours, a moving finger's swing cut short) "
                           "or their acceleration (acceleration: a finger may move at a steady speed, but fingers "

@@ -205,8 +205,44 @@ def test_pose_smoothness_by_acceleration_lets_a_steady_motion_be_and_holds_jitte
     ratio = losses.temporal_pose_loss(jitter, times, "acceleration") / losses.temporal_pose_loss(jitter, times)
     assert ratio.item() == pytest.approx(3.0, rel=0.02)
     assert losses.temporal_pose_loss(jitter[:2], times[:2], "acceleration") == 0     # too few frames to tell
-    with pytest.raises(ValueError, match="velocity, acceleration"):
+    with pytest.raises(ValueError, match="velocity, acceleration, adaptive"):
         losses.temporal_pose_loss(jitter, times, "jerk")
+
+
+def test_a_joint_turning_steadily_is_as_still_as_its_speed_says_and_jitter_averages_out():
+    """joint_stillness: a joint turning at a steady w rad/s is 1 / (1 + (w / still speed)^2) still away
+    from the clip's ends (smoothing leaves a steady turn as it is); one held still under independent
+    jitter of 10 degrees (gt-noise's) is mostly still, because the jitter is smoothed away first."""
+    fps, speed = 30.0, 1.2
+    pose = np.zeros((240, 16, 3))
+    pose[:, 2, 1] = speed / fps * np.arange(240)
+    stillness = losses.joint_stillness(pose, fps)
+    expected = 1 / (1 + (speed / losses.STILL_SPEED) ** 2)
+    np.testing.assert_allclose(stillness[70:170, 2], expected, rtol=1e-6)     # the smoothing reaches 60 frames
+    np.testing.assert_allclose(stillness[:, 5], 1.0)
+    jitter = np.random.default_rng(0).normal(size=(3000, 16, 3)) * np.radians(10) / np.sqrt(3)
+    assert 0.8 < losses.joint_stillness(jitter, fps).mean() < 0.95
+    assert losses.joint_stillness(pose[:1], fps).shape == (1, 16)
+
+
+def test_adaptive_pose_smoothness_is_the_velocity_where_still_and_the_acceleration_where_moving():
+    times = torch.tensor([0, 1, 2, 4, 5, 6])
+    pose = torch.randn(6, 16, 3, generator=torch.Generator().manual_seed(1)) * 0.1
+    still, moving = torch.ones(6, 16), torch.zeros(6, 16)
+    assert losses.temporal_pose_loss(pose, times, "adaptive", still).item() == pytest.approx(
+        losses.temporal_pose_loss(pose, times, "velocity").item(), rel=1e-6)
+    assert losses.temporal_pose_loss(pose, times, "adaptive", moving).item() == pytest.approx(
+        losses.temporal_pose_loss(pose, times, "acceleration").item(), rel=1e-6)
+    # joint 3 still (its velocity), the others moving (their acceleration): the sum of the two parts
+    mixed = moving.clone()
+    mixed[:, 3] = 1
+    only_joint_3, the_others = torch.zeros_like(pose), pose.clone()
+    only_joint_3[:, 3], the_others[:, 3] = pose[:, 3], 0
+    expected = (losses.temporal_pose_loss(only_joint_3, times, "velocity")
+                + losses.temporal_pose_loss(the_others, times, "acceleration"))
+    assert losses.temporal_pose_loss(pose, times, "adaptive", mixed).item() == pytest.approx(expected.item(), rel=1e-6)
+    with pytest.raises(ValueError, match="stillness"):
+        losses.temporal_pose_loss(pose, times, "adaptive")
 
 
 def test_temporal_terms_vanish_on_steady_motion_and_count_time_gaps():

@@ -146,12 +146,28 @@ def at_anchor_size(problem, keypoints):
     return keypoints * (initial_size / avatar.model.size(avatar.betas))
 
 
-@_term("temporal_pose", 10.0, _GEOMETRY)
+def _joint_stillness(problem):
+    """(F, 16) how still each joint holds at each fitted frame in the initial estimate (losses.joint_stillness),
+    when the temporal pose term is "adaptive"; else None."""
+    if problem.settings.pose_smoothness != "adaptive":
+        return None
+    stillness = losses.joint_stillness(problem.initial.pose, problem.clip.info.fps)[problem.frames]
+    return torch.as_tensor(stillness, dtype=problem.avatar.pose.dtype, device=problem.device)
+
+
+@_term("temporal_pose", 10.0, _GEOMETRY, prepare=_joint_stillness)
 def _temporal_pose(batch):
     # over every frame (no rendering involved): the batch's frames feel their neighbours
     avatar = batch.problem.avatar
     return losses.temporal_pose_loss(avatar.pose * avatar.pose_mask, avatar.frame_numbers,
-                                     batch.problem.settings.pose_smoothness)
+                                     batch.problem.settings.pose_smoothness,
+                                     batch.problem.term_data.get("temporal_pose"))
+
+
+@_term("temporal_pose_acceleration", 0.0, _GEOMETRY)
+def _temporal_pose_acceleration(batch):
+    avatar = batch.problem.avatar
+    return losses.temporal_pose_loss(avatar.pose * avatar.pose_mask, avatar.frame_numbers, "acceleration")
 
 
 def _reference_depth(problem):

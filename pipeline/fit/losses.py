@@ -7,6 +7,7 @@ term lives in perceptual.py. Shapes: B frames, V vertices, F faces, H x W images
 """
 from __future__ import annotations
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -138,17 +139,42 @@ def _per_frame_acceleration(values, times):
     return (velocity[1:] - velocity[:-1]) / half_span.view(-1, *([1] * (values.dim() - 1)))
 
 
-POSE_SMOOTHNESS = ("velocity", "acceleration")     # FitSettings.pose_smoothness
+POSE_SMOOTHNESS = ("velocity", "acceleration", "adaptive")     # FitSettings.pose_smoothness
+
+STILL_SPEED = 0.6            # rad/s: a joint turning this fast in the smoothed initial estimate is half still
+MOTION_SMOOTHING_S = 1 / 6   # s: the initial estimate's joint rotations are smoothed over this (a Gaussian's sigma)
 
 
-def temporal_pose_loss(pose, times, measure="velocity"):
+def joint_stillness(pose, fps, still_speed=STILL_SPEED, smoothing_s=MOTION_SMOOTHING_S):
+    """(F, J) in (0, 1]: how still each joint holds at each frame in the joint rotations `pose`
+    (F, J, 3) of consecutive frames at `fps`: 1 / (1 + (speed / still_speed)^2), the speed (rad/s)
+    that of the rotations smoothed over `smoothing_s` (a noisy start's jitter averages out, a
+    finger's swing stays), its square averaged over twice that. The temporal pose term
+    ("adaptive") holds a still joint's velocity and a moving one's acceleration."""
+    from scipy.ndimage import gaussian_filter1d
+
+    pose = np.asarray(pose, dtype=np.float64)
+    if len(pose) < 2:
+        return np.ones(pose.shape[:2])
+    sigma = smoothing_s * fps
+    smoothed = gaussian_filter1d(pose, sigma, axis=0, mode="nearest")
+    step = np.diff(smoothed, axis=0)
+    speed_sq = np.concatenate([step[:1], (step[1:] + step[:-1]) / 2, step[-1:]]) ** 2
+    speed_sq = gaussian_filter1d(speed_sq.sum(2), 2 * sigma, axis=0, mode="nearest") * fps ** 2
+    return 1 / (1 + speed_sq / still_speed ** 2)
+
+
+def temporal_pose_loss(pose, times, measure="velocity", stillness=None):
     """Mean over frames of the squared velocity ("velocity": the change between consecutive
     frames) or acceleration of the joint rotations (F, J, 3) per frame of time (radians^2 per
     frame^2 or frame^4): fingers move smoothly at video rates. `times` (F,) are the frames'
     indices in the clip, so subsampled or held-out gaps count as longer. The velocity holds
     every frame towards its neighbours' mean, a moving finger's extremes too; the acceleration
     lets a finger move at a steady speed and still holds one frame's jitter (three times as hard
-    per unit weight: independent noise of variance s^2 gives steps of 2 s^2, accelerations of 6)."""
+    per unit weight: independent noise of variance s^2 gives steps of 2 s^2, accelerations of 6).
+    "adaptive": each joint's velocity times its `stillness` (F, J) (joint_stillness) plus its
+    acceleration times the rest, so that a joint that holds still is held to one pose and a
+    moving one only to a smooth motion."""
     if measure not in POSE_SMOOTHNESS:
         raise ValueError(f"pose smoothness must be one of {', '.join(POSE_SMOOTHNESS)}, got {measure!r}")
     if measure == "acceleration":
@@ -156,7 +182,16 @@ def temporal_pose_loss(pose, times, measure="velocity"):
                 else pose.new_zeros(()))
     if len(pose) < 2:
         return pose.new_zeros(())
-    return _per_frame_step(pose, times).square().sum((1, 2)).mean()
+    if measure == "velocity":
+        return _per_frame_step(pose, times).square().sum((1, 2)).mean()
+    if stillness is None:
+        raise ValueError("the adaptive pose smoothness needs the joints' stillness")
+    velocity_sq = _per_frame_step(pose, times).square().sum(2)                     # (F - 1, J)
+    held_still = (velocity_sq * (stillness[1:] + stillness[:-1]) / 2).sum(1).mean()
+    if len(pose) < 3:
+        return held_still
+    acceleration_sq = _per_frame_acceleration(pose, times).square().sum(2)         # (F - 2, J)
+    return held_still + (acceleration_sq * (1 - stillness[1:-1])).sum(1).mean()
 
 
 def exposure_loss(log_gains, times, measured, known, spread=0.02):
