@@ -370,11 +370,11 @@ def build_parser():
                           "their size included (held, default), or the pose and proportions alone, the fitted hand "
                           "brought to their size first (free: the size left to the silhouettes; docs/fidelity.md)")
     fit.add_argument("--pose-smoothness", choices=("acceleration", "adaptive", "velocity"), default=None,   # losses.POSE_SMOOTHNESS
-                     help="what the temporal pose term holds still: the joint rotations' velocity (velocity, "
-                          "default: every frame pulled towards its neighbours, a moving finger's swing cut short) "
-                          "or their acceleration (acceleration: a finger may move at a steady speed, but fingers "
-                          "that hold still keep more of the start's noise; on the study's fingers clips joints "
-                          "36-38%% lower, on its flip clips 27-34%% higher: docs/study.md)")
+                     help="what the temporal pose term holds of the joint rotations: their velocity where the "
+                          "initial estimate, smoothed over time, holds a joint still and their acceleration where it "
+                          "moves (adaptive, default), their velocity everywhere (velocity: a moving finger's swing "
+                          "cut short) or their acceleration everywhere (acceleration: still fingers keep more of "
+                          "the start's noise); docs/study.md, section 7")
     fit.add_argument("--weight", action="append", default=None, metavar="NAME=VALUE",
                      help="an energy term's weight (repeatable), e.g. size_prior=1 (the terms and their defaults: "
                           "pipeline/fit/energy_terms.py; 0 switches a term off)")

@@ -245,6 +245,27 @@ def test_adaptive_pose_smoothness_is_the_velocity_where_still_and_the_accelerati
         losses.temporal_pose_loss(pose, times, "adaptive")
 
 
+def test_the_fits_stillness_is_measured_on_the_whole_clip_and_read_at_its_frames():
+    """The adaptive term's prepared stillness: the initial estimate's every frame at the clip's fps
+    (held-out frames and subsampling do not make the motion look faster), read at the fitted frames;
+    none for the other measures."""
+    from pipeline.fit.energy_terms import ENERGY_TERMS
+
+    pose = np.zeros((90, 16, 3))
+    pose[:, 4, 0] = np.sin(np.arange(90) / 9)
+    frames = np.arange(0, 90, 3)
+    problem = types.SimpleNamespace(settings=types.SimpleNamespace(pose_smoothness="adaptive"),
+                                    initial=types.SimpleNamespace(pose=pose), frames=frames, device=torch.device("cpu"),
+                                    clip=types.SimpleNamespace(info=types.SimpleNamespace(fps=30.0)),
+                                    avatar=types.SimpleNamespace(pose=torch.zeros(30, 16, 3, dtype=torch.float64)))
+    prepared = ENERGY_TERMS["temporal_pose"].prepare(problem)
+    assert prepared.shape == (30, 16) and prepared.dtype == torch.float64
+    np.testing.assert_allclose(prepared.numpy(), losses.joint_stillness(pose, 30.0)[frames])
+    assert prepared[:, 4].min() < 0.9 and bool((prepared[:, 5] == 1).all())
+    problem.settings.pose_smoothness = "velocity"
+    assert ENERGY_TERMS["temporal_pose"].prepare(problem) is None
+
+
 def test_temporal_terms_vanish_on_steady_motion_and_count_time_gaps():
     times = torch.tensor([0, 1, 2, 4, 5])
     pose = torch.zeros(5, 16, 3)

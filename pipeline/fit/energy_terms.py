@@ -164,12 +164,6 @@ def _temporal_pose(batch):
                                      batch.problem.term_data.get("temporal_pose"))
 
 
-@_term("temporal_pose_acceleration", 0.0, _GEOMETRY)
-def _temporal_pose_acceleration(batch):
-    avatar = batch.problem.avatar
-    return losses.temporal_pose_loss(avatar.pose * avatar.pose_mask, avatar.frame_numbers, "acceleration")
-
-
 def _reference_depth(problem):
     """The initial estimate's mean depth over the fitted frames (metres), when the translations'
     smoothness is measured as the camera sees them (settings.translation_smoothness "camera")."""

@@ -182,14 +182,15 @@ class FitSettings:
     # alone, but the fitted frames 0.1-1.1 dB lower and the joints 0.03-0.13 mm worse on both paths; on the demo
     # level: off (docs/fidelity.md)
     translation_smoothness: str = "metres"
-    # what the temporal pose term measures of the joint rotations (losses.temporal_pose_loss): "velocity", the
-    # default, their change between frames, or "acceleration", the change of that change. The velocity holds every
-    # frame towards its neighbours' mean, so a finger that bends and straightens is pulled short of its swing: on
-    # the study's `fingers` clips (gt-noise, fast, fit seeds 0-2) the acceleration took the joints from 2.42-2.71
-    # to 1.50-1.73 mm, ending at the curve's lowest (was 1.31-1.34x), vertex 10-21% and L1 9-19% lower; but on its
-    # `flip` clips, whose fingers hold still, it let more of the start's noise through (seed 0: joints 1.01 ->
-    # 1.35 and 1.23 -> 1.56 mm): not the default until one setting is better on both (docs/study.md, section 6)
-    pose_smoothness: str = "velocity"
+    # what the temporal pose term measures of the joint rotations (losses.temporal_pose_loss): "velocity", their
+    # change between frames, "acceleration", the change of that change, or "adaptive" (the default), each joint's
+    # velocity where the initial estimate, smoothed over time, holds it still and its acceleration where it moves
+    # (losses.joint_stillness). The velocity holds every frame towards its neighbours' mean, so a finger that bends
+    # and straightens is pulled short of its swing; the acceleration lets still fingers keep more of the start's
+    # noise. On the study's clips (gt-noise, fast) "adaptive" took the `fingers` clips' joints from 2.42-2.71 mm to
+    # those of the acceleration or lower and held the `flip` clips' at the velocity's; the MediaPipe-started demo
+    # level (docs/study.md, section 7)
+    pose_smoothness: str = "adaptive"
     # what the keypoint anchor holds of the initial estimate's keypoints: "held", their root-relative positions in
     # metres (their size too: MediaPipe's, good to 2-3%), or "free", the same with the fitted hand brought to
     # the initial estimate's size first (energy_terms._keypoint_anchor): the pose and the proportions held, the
