@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 import torch.nn.functional as F
+from scipy.ndimage import gaussian_filter1d
 
 from ..render.shading import sphere_radiance_basis
 
@@ -151,8 +152,6 @@ def joint_stillness(pose, fps, still_speed=STILL_SPEED, smoothing_s=MOTION_SMOOT
     that of the rotations smoothed over `smoothing_s` (a noisy start's jitter averages out, a
     finger's swing stays), its square averaged over twice that. The temporal pose term
     ("adaptive") holds a still joint's velocity and a moving one's acceleration."""
-    from scipy.ndimage import gaussian_filter1d
-
     pose = np.asarray(pose, dtype=np.float64)
     if len(pose) < 2:
         return np.ones(pose.shape[:2])

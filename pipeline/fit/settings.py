@@ -187,9 +187,10 @@ class FitSettings:
     # velocity where the initial estimate, smoothed over time, holds it still and its acceleration where it moves
     # (losses.joint_stillness). The velocity holds every frame towards its neighbours' mean, so a finger that bends
     # and straightens is pulled short of its swing; the acceleration lets still fingers keep more of the start's
-    # noise. On the study's clips (gt-noise, fast) "adaptive" took the `fingers` clips' joints from 2.42-2.71 mm to
-    # those of the acceleration or lower and held the `flip` clips' at the velocity's; the MediaPipe-started demo
-    # level (docs/study.md, section 7)
+    # noise. On the study's clips (gt-noise, fast, fit seeds 0-2) "adaptive" took the `fingers` clips' joints from
+    # 2.42-2.71 mm (velocity) to 1.45-1.64 (acceleration 1.50-1.73), ending within 2% of the curve's lowest, and held
+    # the `flip` clips' at the velocity's or 1-2% lower (acceleration: 27-34% higher); the MediaPipe-started demo
+    # level within its seeds' spread (docs/study.md, section 7)
     pose_smoothness: str = "adaptive"
     # what the keypoint anchor holds of the initial estimate's keypoints: "held", their root-relative positions in
     # metres (their size too: MediaPipe's, good to 2-3%), or "free", the same with the fitted hand brought to
