@@ -209,10 +209,11 @@ def test_pose_smoothness_by_acceleration_lets_a_steady_motion_be_and_holds_jitte
         losses.temporal_pose_loss(jitter, times, "jerk")
 
 
-def test_a_joint_turning_steadily_is_as_still_as_its_speed_says_and_jitter_averages_out():
+def test_a_joint_turning_steadily_is_as_still_as_its_speed_says_and_jitter_does_not_count():
     """joint_stillness: a joint turning at a steady w rad/s is 1 / (1 + (w / still speed)^2) still away
-    from the clip's ends (smoothing leaves a steady turn as it is); one held still under independent
-    jitter of 10 degrees (gt-noise's) is mostly still, because the jitter is smoothed away first."""
+    from the clip's ends (smoothing leaves a steady turn as it is), under independent jitter of 10
+    degrees (gt-noise's) too; one held still under that jitter reads still, on a long clip and on
+    short ones (where smoothing leaves much of the jitter: what it leaves is taken off the speed)."""
     fps, speed = 30.0, 1.2
     pose = np.zeros((240, 16, 3))
     pose[:, 2, 1] = speed / fps * np.arange(240)
@@ -220,9 +221,27 @@ def test_a_joint_turning_steadily_is_as_still_as_its_speed_says_and_jitter_avera
     expected = 1 / (1 + (speed / losses.STILL_SPEED) ** 2)
     np.testing.assert_allclose(stillness[70:170, 2], expected, rtol=1e-6)     # the smoothing reaches 60 frames
     np.testing.assert_allclose(stillness[:, 5], 1.0)
-    jitter = np.random.default_rng(0).normal(size=(3000, 16, 3)) * np.radians(10) / np.sqrt(3)
-    assert 0.8 < losses.joint_stillness(jitter, fps).mean() < 0.95
+    rng = np.random.default_rng(0)
+    jittered = pose + rng.normal(size=pose.shape) * np.radians(10) / np.sqrt(3)
+    assert losses.joint_stillness(jittered, fps)[70:170, 2].mean() == pytest.approx(expected, abs=0.01)
+    assert losses.joint_stillness(jittered, fps)[:, 5].mean() > 0.95
+    assert losses.joint_stillness(rng.normal(size=(3000, 16, 3)) * np.radians(10) / np.sqrt(3), fps).mean() > 0.98
+    short = [losses.joint_stillness(rng.normal(size=(30, 16, 3)) * np.radians(10) / np.sqrt(3), fps).mean()
+             for _ in range(50)]
+    assert np.mean(short) > 0.93          # without taking the jitter off: 0.83
     assert losses.joint_stillness(pose[:1], fps).shape == (1, 16)
+
+
+def test_the_jitter_left_after_smoothing_is_that_of_the_smoothed_steps():
+    """The variance that joint_stillness's smoothed centred step keeps of unit independent noise, per
+    frame, against the variance of that step over many draws of such noise; long clips take their
+    middle's value from a short one, which equals the whole computation."""
+    sigma = losses.MOTION_SMOOTHING_S * 30.0
+    noise = np.random.default_rng(1).normal(size=(12, 40000))
+    drawn = losses._centred_steps(scipy.ndimage.gaussian_filter1d(noise, sigma, axis=0, mode="nearest")).var(1)
+    np.testing.assert_allclose(losses._smoothed_step_noise_gain(12, sigma), drawn, rtol=0.03)
+    whole = losses._centred_steps(scipy.ndimage.gaussian_filter1d(np.eye(300), sigma, axis=0, mode="nearest"))
+    np.testing.assert_allclose(losses._smoothed_step_noise_gain(300, sigma), (whole ** 2).sum(1), rtol=1e-12)
 
 
 def test_adaptive_pose_smoothness_is_the_velocity_where_still_and_the_acceleration_where_moving():

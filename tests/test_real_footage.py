@@ -200,7 +200,9 @@ def test_sleeves_and_the_frame_edge_do_not_break_the_fit(uncut_fit, tmp_path, ca
     # IoU 0.920 / 24.2 dB against the uncut fit's 0.942 / 25.4 (both better than with the anchor whole, 0.889 /
     # 21.9 against 0.890 / 21.7: the uncut fit gained more)
     assert result["iou"] > reference["iou"] - 0.03 and result["psnr"] > reference["psnr"] - 1.5
-    # fingers outside the picture lose their silhouette: 2.94 against 2.66 mm uncut (+11%), sleeve 2.65 vs 2.78
+    # fingers outside the picture lose their silhouette: 2.78 against 2.49 mm uncut (+11%), sleeve 2.53 (adaptive pose
+    # smoothness; before its stillness took the start's jitter off, a 6-frame clip read still joints as moving: 3.14
+    # against 2.72, failing this)
     assert result["joint_mm"] < 1.15 * reference["joint_mm"]
 
 

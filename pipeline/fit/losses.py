@@ -150,17 +150,42 @@ def joint_stillness(pose, fps, still_speed=STILL_SPEED, smoothing_s=MOTION_SMOOT
     """(F, J) in (0, 1]: how still each joint holds at each frame in the joint rotations `pose`
     (F, J, 3) of consecutive frames at `fps`: 1 / (1 + (speed / still_speed)^2), the speed (rad/s)
     that of the rotations smoothed over `smoothing_s` (a noisy start's jitter averages out, a
-    finger's swing stays), its square averaged over twice that. The temporal pose term
-    ("adaptive") holds a still joint's velocity and a moving one's acceleration."""
+    finger's swing stays), its square averaged over twice that, less what the start's jitter still
+    adds to it (a short clip smooths little of it away: a still joint must read still there too).
+    The temporal pose term ("adaptive") holds a still joint's velocity and a moving one's
+    acceleration."""
     pose = np.asarray(pose, dtype=np.float64)
     if len(pose) < 2:
         return np.ones(pose.shape[:2])
     sigma = smoothing_s * fps
-    smoothed = gaussian_filter1d(pose, sigma, axis=0, mode="nearest")
-    step = np.diff(smoothed, axis=0)
-    speed_sq = np.concatenate([step[:1], (step[1:] + step[:-1]) / 2, step[-1:]]) ** 2
-    speed_sq = gaussian_filter1d(speed_sq.sum(2), 2 * sigma, axis=0, mode="nearest") * fps ** 2
+    speed_sq = (_centred_steps(gaussian_filter1d(pose, sigma, axis=0, mode="nearest")) ** 2).sum(2)
+    # independent jitter of variance s^2 per frame: its second differences have variance 6 s^2 (a smooth motion's
+    # are small at video rates), and it adds s^2 times the smoothed step's squared weights to the squared speed
+    jitter_var = (np.diff(pose, 2, axis=0) ** 2).sum(2).mean(0) / 6 if len(pose) >= 3 else np.zeros(pose.shape[1])
+    speed_sq = speed_sq - _smoothed_step_noise_gain(len(pose), sigma)[:, None] * jitter_var[None, :]
+    speed_sq = np.maximum(gaussian_filter1d(speed_sq, 2 * sigma, axis=0, mode="nearest"), 0) * fps ** 2
     return 1 / (1 + speed_sq / still_speed ** 2)
+
+
+def _centred_steps(values):
+    """(F, ...) per-frame steps of consecutive values (F, ...): the mean of the steps on either side,
+    the one step at the ends."""
+    step = np.diff(values, axis=0)
+    return np.concatenate([step[:1], (step[1:] + step[:-1]) / 2, step[-1:]])
+
+
+def _smoothed_step_noise_gain(frames, sigma):
+    """(frames,) the variance of joint_stillness's smoothed centred step at each frame per unit
+    variance of independent per-frame noise: the squared weights of that linear operator, summed.
+    Frames farther than the Gaussian's reach from both ends share one value, so long clips are
+    measured on a short one."""
+    reach = int(4 * sigma + 0.5) + 2                   # the kernel's radius (scipy truncates at 4 sigma), and a step
+    size = min(frames, 2 * reach + 1)
+    operator = _centred_steps(gaussian_filter1d(np.eye(size), sigma, axis=0, mode="nearest"))
+    gain = (operator ** 2).sum(1)
+    if size == frames:
+        return gain
+    return np.concatenate([gain[:reach], np.full(frames - 2 * reach, gain[reach]), gain[-reach:]])
 
 
 def temporal_pose_loss(pose, times, measure="velocity", stillness=None):
