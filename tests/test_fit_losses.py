@@ -228,7 +228,7 @@ def test_a_joint_turning_steadily_is_as_still_as_its_speed_says_and_jitter_does_
     assert losses.joint_stillness(rng.normal(size=(3000, 16, 3)) * np.radians(10) / np.sqrt(3), fps).mean() > 0.98
     short = [losses.joint_stillness(rng.normal(size=(30, 16, 3)) * np.radians(10) / np.sqrt(3), fps).mean()
              for _ in range(50)]
-    assert np.mean(short) > 0.93          # without taking the jitter off: 0.83
+    assert np.mean(short) > 0.93          # without taking the jitter off: 0.79
     assert losses.joint_stillness(pose[:1], fps).shape == (1, 16)
 
 

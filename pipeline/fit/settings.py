@@ -190,7 +190,7 @@ class FitSettings:
     # noise. On the study's clips (gt-noise, fast, fit seeds 0-2) "adaptive" took the `fingers` clips' joints from
     # 2.42-2.71 mm (velocity) to 1.44-1.65 (acceleration 1.50-1.73), ending within 3% of the curve's lowest, and held
     # the `flip` clips' at the velocity's (acceleration: 27-34% higher); the MediaPipe-started demo level within its
-    # seeds' spread; on 6-frame clips 3-7% behind the velocity (docs/study.md, section 7)
+    # seeds' spread; on 6-frame clips 4-7% behind the velocity (docs/study.md, section 7)
     pose_smoothness: str = "adaptive"
     # what the keypoint anchor holds of the initial estimate's keypoints: "held", their root-relative positions in
     # metres (their size too: MediaPipe's, good to 2-3%), or "free", the same with the fitted hand brought to
