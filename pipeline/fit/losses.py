@@ -158,20 +158,14 @@ def joint_stillness(pose, fps, still_speed=STILL_SPEED, smoothing_s=MOTION_SMOOT
     if len(pose) < 2:
         return np.ones(pose.shape[:2])
     sigma = smoothing_s * fps
-    speed_sq = (_centred_steps(gaussian_filter1d(pose, sigma, axis=0, mode="nearest")) ** 2).sum(2)
+    # the centred step per frame (one-sided at the ends): np.gradient
+    speed_sq = (np.gradient(gaussian_filter1d(pose, sigma, axis=0, mode="nearest"), axis=0) ** 2).sum(2)
     # independent jitter of variance s^2 per frame: its second differences have variance 6 s^2 (a smooth motion's
     # are small at video rates), and it adds s^2 times the smoothed step's squared weights to the squared speed
     jitter_var = (np.diff(pose, 2, axis=0) ** 2).sum(2).mean(0) / 6 if len(pose) >= 3 else np.zeros(pose.shape[1])
     speed_sq = speed_sq - _smoothed_step_noise_gain(len(pose), sigma)[:, None] * jitter_var[None, :]
     speed_sq = np.maximum(gaussian_filter1d(speed_sq, 2 * sigma, axis=0, mode="nearest"), 0) * fps ** 2
     return 1 / (1 + speed_sq / still_speed ** 2)
-
-
-def _centred_steps(values):
-    """(F, ...) per-frame steps of consecutive values (F, ...): the mean of the steps on either side,
-    the one step at the ends."""
-    step = np.diff(values, axis=0)
-    return np.concatenate([step[:1], (step[1:] + step[:-1]) / 2, step[-1:]])
 
 
 def _smoothed_step_noise_gain(frames, sigma):
@@ -181,7 +175,7 @@ def _smoothed_step_noise_gain(frames, sigma):
     measured on a short one."""
     reach = int(4 * sigma + 0.5) + 2                   # the kernel's radius (scipy truncates at 4 sigma), and a step
     size = min(frames, 2 * reach + 1)
-    operator = _centred_steps(gaussian_filter1d(np.eye(size), sigma, axis=0, mode="nearest"))
+    operator = np.gradient(gaussian_filter1d(np.eye(size), sigma, axis=0, mode="nearest"), axis=0)
     gain = (operator ** 2).sum(1)
     if size == frames:
         return gain
